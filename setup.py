@@ -1,0 +1,70 @@
+"""
+Build script of the emfc_ros ament_python package.
+
+Installs three ways: ``pip install .`` into a virtual environment fed from PyPI,
+``colcon build`` (with or without ``--symlink-install``), and a colcon workspace on a full
+ROS 2 Jazzy install. ``ros2 run emfc_ros <node>`` finds the small wrapper scripts that
+``data_files`` puts in ``<prefix>/lib/emfc_ros``; console scripts get ``emfc-*`` names.
+"""
+
+import os
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = 'emfc_ros'
+
+# Node executables for `ros2 run emfc_ros <name>`: wrapper scripts in lib_wrappers/.
+NODES = {
+    'signal_generator': 'emfc_ros.nodes.signal_generator:main',
+}
+
+# Offline commands for PATH users.
+COMMANDS = {
+    'emfc-signal-generator': 'emfc_ros.nodes.signal_generator:main',
+    'emfc-generate': 'emfc_ros.cli.generate:main',
+    'emfc-demo': 'emfc_ros.cli.demo:main',
+}
+
+# On a full ROS install (ROS_DISTRO set by its setup script) rclpy and the message
+# packages come from the distribution, not from PyPI; declaring the PyPI wheels there
+# would make setuptools look for distributions that do not exist.
+ROS_FROM_PYPI = [] if os.environ.get('ROS_DISTRO') else [
+    'ros-jazzy-rclpy[fastrtps]',
+    'ros-jazzy-common-interfaces',
+]
+
+setup(
+    name=PACKAGE,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*', 'bench', 'bench.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
+        ('share/' + PACKAGE, ['package.xml']),
+        ('share/' + PACKAGE + '/config', sorted(glob('config/*.yaml'))),
+        ('share/' + PACKAGE + '/launch', sorted(glob('launch/*.launch.py'))),
+        ('lib/' + PACKAGE, ['lib_wrappers/' + name for name in sorted(NODES)]),
+    ],
+    python_requires='>=3.10',
+    install_requires=[
+        'setuptools',
+        'numpy>=1.24',
+        'scipy>=1.10',
+        'PyYAML>=6',
+        'rosbags>=0.10',
+    ] + ROS_FROM_PYPI,
+    extras_require={
+        'fast': ['numba>=0.59'],
+        'plot': ['matplotlib>=3.7'],
+        'test': ['pytest>=7', 'hypothesis>=6', 'mcap>=1.1', 'mcap-ros2-support>=0.5'],
+    },
+    zip_safe=True,
+    maintainer='emfc_ros developers',
+    maintainer_email='emfc-ros@example.org',
+    description='ROS 2 node suite for experiments on EMFC balances',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [f'{name} = {target}' for name, target in sorted(COMMANDS.items())],
+    },
+)
