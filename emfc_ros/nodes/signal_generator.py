@@ -1,0 +1,373 @@
+"""
+The signal_generator node: excitation blocks for the coil and load-changer amplifiers.
+
+Topics (relative to the node namespace):
+
+- ``excitation`` (``std_msgs/Float64MultiArray``, out): setpoint-voltage blocks [V] in the
+  block convention of :mod:`emfc_ros.core.blocks`.
+- ``excitation/description`` (``std_msgs/String``, out, latched): the stream description.
+- ``excitation/consumed`` (``std_msgs/UInt64``, in): a consumer's acknowledgement, the
+  number of samples it has consumed; drives ``pacing: consumer``.
+- ``status`` (``std_msgs/String``, out, latched): JSON with state, sample index, section.
+- ``done`` (``std_msgs/Bool``, out, latched): true once the experiment has been sent.
+- ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``, out, 1 Hz).
+
+Services (``std_srvs/Trigger``): ``arm`` (load the experiment, rewind to sample 0 in a new
+epoch), ``start`` (arm if needed, then publish), ``stop`` (stop publishing).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+import time
+from typing import List, Optional
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from std_msgs.msg import Bool, Float64MultiArray, String, UInt64
+from std_srvs.srv import Trigger
+
+from emfc_ros.core.blocks import Channel, StreamDescription
+from emfc_ros.core.config import unflatten
+from emfc_ros.core.pacing import ClockPacer, ConsumerPacer
+from emfc_ros.core.paths import config_file
+from emfc_ros.core.signals import Experiment, experiment_from_config, load_experiment_file
+from emfc_ros.nodes.convert import (
+    BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, diagnostic_status,
+    LATCHED_QOS)
+
+DEFAULT_EXPERIMENT = 'identification_trajectory.yaml'
+PACING = ('wall', 'consumer')
+CHANNEL_TEXT = {
+    'coil': 'setpoint voltage of the coil (compensation) power amplifier',
+    'load_changer': 'setpoint voltage of the load-changer power amplifier',
+}
+
+# name: (default, description with units)
+PARAMETERS = {
+    'experiment_file': ('', 'YAML file with the experiment (plain `experiment:` mapping or a '
+                            'ROS params file); empty: use the experiment.* parameters, or the '
+                            'shipped identification trajectory if there are none'),
+    'block_size': (1000, 'samples per excitation block [samples], 1 to 1000000'),
+    'pacing': ('wall', "'wall': paced to the wall clock; 'consumer': as fast as the consumer "
+                       'acknowledges on excitation/consumed'),
+    'lead_blocks': (2, 'wall pacing: blocks sent ahead of the wall clock [blocks], 0 to 1000'),
+    'window_blocks': (8, 'consumer pacing: blocks in flight beyond the acknowledged index '
+                         '[blocks], 1 to 1000'),
+    'autostart': (True, 'arm and start when the node comes up'),
+    'tick_period_s': (0.001, 'period of the publishing timer [s], 1e-4 to 1'),
+    'max_blocks_per_tick': (64, 'most blocks published per timer tick [blocks], 1 to 10000'),
+}
+
+
+class SignalGeneratorNode(Node):
+    """
+    Publish an experiment's excitation as sample blocks.
+
+    Parameters
+    ----------
+    **kwargs
+        Passed to :class:`rclpy.node.Node` (for example ``parameter_overrides``).
+    """
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('signal_generator', allow_undeclared_parameters=True,
+                         automatically_declare_parameters_from_overrides=True, **kwargs)
+        for name, (default, text) in PARAMETERS.items():
+            if not self.has_parameter(name):
+                self.declare_parameter(name, default, ParameterDescriptor(description=text))
+        self._state = 'idle'
+        self._error = ''
+        self._experiment: Optional[Experiment] = None
+        self._epoch = 0
+        self._next_index = 0
+        self._blocks_sent = 0
+        self._started_at = 0.0
+        self._clock_pacer: Optional[ClockPacer] = None
+        self._consumer_pacer: Optional[ConsumerPacer] = None
+        self._builder = BlockMessageBuilder()
+        self._rejected_acks = 0
+
+        self._pub_blocks = self.create_publisher(Float64MultiArray, 'excitation', BLOCK_QOS)
+        self._pub_description = self.create_publisher(String, 'excitation/description',
+                                                      LATCHED_QOS)
+        self._pub_status = self.create_publisher(String, 'status', LATCHED_QOS)
+        self._pub_done = self.create_publisher(Bool, 'done', LATCHED_QOS)
+        self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.create_subscription(UInt64, 'excitation/consumed', self._on_consumed, CONTROL_QOS)
+        self.create_service(Trigger, 'arm', self._srv_arm)
+        self.create_service(Trigger, 'start', self._srv_start)
+        self.create_service(Trigger, 'stop', self._srv_stop)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        self._timer = self.create_timer(self._param('tick_period_s'), self._tick)
+        self.create_timer(1.0, self._publish_diagnostics)
+        self._publish_done(False)
+        ok, reason = self._arm()
+        if not ok:
+            self.get_logger().error(f'experiment refused: {reason}; fix the parameters and '
+                                    'call ~/arm or ~/start')
+        elif self._param('autostart'):
+            self._start()
+        self._publish_status()
+
+    # -- configuration ---------------------------------------------------------------------
+
+    def _param(self, name: str):
+        return self.get_parameter(name).value
+
+    def _build_experiment(self, overrides: Optional[List[Parameter]] = None) -> Experiment:
+        """Build the experiment from the parameters, with proposed changes applied."""
+        flat = {name: p.value
+                for name, p in self.get_parameters_by_prefix('experiment').items()}
+        path = self._param('experiment_file')
+        for p in overrides or []:
+            if p.name == 'experiment_file':
+                path = p.value
+            elif p.name.startswith('experiment.'):
+                flat[p.name[len('experiment.'):]] = p.value
+        flat = {k: v for k, v in flat.items() if v is not None}
+        if path:
+            return load_experiment_file(Path(path))
+        if not flat:
+            return load_experiment_file(config_file(DEFAULT_EXPERIMENT))
+        flat = {k: (list(v) if not isinstance(v, (str, bytes, bool, int, float)) else v)
+                for k, v in flat.items()}
+        return experiment_from_config(unflatten(flat))
+
+    def _on_set_parameters(self, params: List[Parameter]) -> SetParametersResult:
+        limits = {'block_size': (1, 1_000_000), 'lead_blocks': (0, 1000),
+                  'window_blocks': (1, 1000), 'max_blocks_per_tick': (1, 10000)}
+        touches_experiment = False
+        for p in params:
+            if p.name in limits:
+                lo, hi = limits[p.name]
+                if p.type_ != Parameter.Type.INTEGER or not lo <= p.value <= hi:
+                    return SetParametersResult(
+                        successful=False,
+                        reason=f'{p.name} must be an integer from {lo} to {hi}, got {p.value!r}')
+            elif p.name == 'pacing' and p.value not in PACING:
+                return SetParametersResult(
+                    successful=False, reason=f'pacing must be one of {list(PACING)}, '
+                                             f'got {p.value!r}')
+            elif p.name == 'tick_period_s' and (
+                    p.type_ != Parameter.Type.DOUBLE or not 1e-4 <= p.value <= 1.0):
+                return SetParametersResult(
+                    successful=False, reason=f'tick_period_s must be a float from 1e-4 to 1 s, '
+                                             f'got {p.value!r}')
+            elif p.name == 'autostart' and p.type_ != Parameter.Type.BOOL:
+                return SetParametersResult(successful=False,
+                                           reason='autostart must be true or false')
+            if p.name == 'experiment_file' or p.name.startswith('experiment.'):
+                touches_experiment = True
+        if touches_experiment or any(p.name in ('block_size', 'pacing') for p in params):
+            if self._state == 'running':
+                return SetParametersResult(
+                    successful=False, reason='cannot change the experiment, block_size or '
+                                             'pacing while running; call ~/stop first')
+        if touches_experiment:
+            try:
+                self._build_experiment(params)
+            except (ValueError, OSError) as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    # -- state machine ---------------------------------------------------------------------
+
+    def _arm(self, overrides: Optional[List[Parameter]] = None) -> tuple:
+        try:
+            experiment = self._build_experiment(overrides)
+        except (ValueError, OSError) as exc:
+            self._state = 'error'
+            self._error = str(exc)
+            return False, str(exc)
+        self._experiment = experiment
+        self._epoch += 1
+        self._next_index = 0
+        self._blocks_sent = 0
+        self._state = 'armed'
+        self._error = ''
+        self._publish_done(False)
+        self._publish_description(start_time_ns=0)
+        return True, (f'armed epoch {self._epoch}: {experiment.total_samples} samples at '
+                      f'{experiment.sample_rate_Hz} Hz')
+
+    def _start(self) -> tuple:
+        if self._state == 'running':
+            return False, 'already running'
+        if self._state != 'armed':
+            ok, reason = self._arm()
+            if not ok:
+                return False, reason
+        block = int(self._param('block_size'))
+        rate = self._experiment.sample_rate_Hz
+        self._started_at = time.monotonic()
+        if self._param('pacing') == 'wall':
+            self._clock_pacer = ClockPacer(rate, block, int(self._param('lead_blocks')),
+                                           self._started_at)
+            self._consumer_pacer = None
+        else:
+            self._consumer_pacer = ConsumerPacer(block, int(self._param('window_blocks')))
+            self._clock_pacer = None
+        self._state = 'running'
+        self._publish_description(start_time_ns=self.get_clock().now().nanoseconds)
+        self._publish_status()
+        self._tick()
+        return True, f'running epoch {self._epoch}'
+
+    def _stop(self) -> tuple:
+        if self._state != 'running':
+            return False, f'not running (state {self._state})'
+        self._state = 'stopped'
+        self._publish_status()
+        return True, f'stopped at sample {self._next_index}'
+
+    def _srv_arm(self, request: Trigger.Request, response: Trigger.Response):
+        if self._state == 'running':
+            response.success, response.message = False, 'running; call ~/stop first'
+        else:
+            response.success, response.message = self._arm()
+        self._publish_status()
+        return response
+
+    def _srv_start(self, request: Trigger.Request, response: Trigger.Response):
+        response.success, response.message = self._start()
+        self._publish_status()
+        return response
+
+    def _srv_stop(self, request: Trigger.Request, response: Trigger.Response):
+        response.success, response.message = self._stop()
+        return response
+
+    # -- streaming -------------------------------------------------------------------------
+
+    def _on_consumed(self, msg: UInt64) -> None:
+        if self._consumer_pacer is None or self._state != 'running':
+            return
+        if msg.data > self._experiment.total_samples:
+            self._rejected_acks += 1
+            return
+        self._consumer_pacer.acknowledge(msg.data)
+        self._tick()
+
+    def _tick(self) -> None:
+        if self._state != 'running':
+            return
+        experiment = self._experiment
+        total = experiment.total_samples
+        block = int(self._param('block_size'))
+        if self._clock_pacer is not None:
+            allowed = self._clock_pacer.allowed_index(time.monotonic())
+        else:
+            allowed = self._consumer_pacer.allowed_index()
+        allowed = min(allowed, total)
+        budget = int(self._param('max_blocks_per_tick'))
+        rate = experiment.sample_rate_Hz
+        section_before = experiment.section_index_at(self._next_index)
+        while self._next_index < allowed and budget > 0:
+            n = min(block, total - self._next_index)
+            samples = experiment.block(self._next_index, n)
+            self._pub_blocks.publish(self._builder.build(self._next_index, rate, self._epoch,
+                                                         samples))
+            self._next_index += n
+            self._blocks_sent += 1
+            budget -= 1
+        if self._next_index < total and \
+                experiment.section_index_at(self._next_index) != section_before:
+            self._publish_status()
+        if self._next_index >= total:
+            self._state = 'done'
+            self._publish_done(True)
+            self._publish_status()
+            self.get_logger().info(f'experiment done: {total} samples in '
+                                   f'{self._blocks_sent} blocks, epoch {self._epoch}')
+
+    # -- announcements ---------------------------------------------------------------------
+
+    def _publish_description(self, start_time_ns: int) -> None:
+        experiment = self._experiment
+        sections = [{'name': s.name, 'first_sample_index': int(first),
+                     'n_samples': int(s.n_samples)}
+                    for s, first in zip(experiment.sections, experiment.boundaries)]
+        description = StreamDescription(
+            stream='excitation', sample_rate_Hz=experiment.sample_rate_Hz,
+            block_size=int(self._param('block_size')),
+            channels=tuple(Channel(name, 'V', CHANNEL_TEXT.get(name, 'setpoint voltage'))
+                           for name in experiment.channels),
+            epoch=self._epoch, start_time_ns=start_time_ns,
+            total_samples=experiment.total_samples, source=self.get_fully_qualified_name(),
+            extra={'sections': sections})
+        self._pub_description.publish(description_to_msg(description))
+
+    def _status_dict(self) -> dict:
+        section = ''
+        if self._experiment is not None:
+            current = self._experiment.section_at(self._next_index)
+            section = current.name if current is not None else ''
+        total = self._experiment.total_samples if self._experiment is not None else 0
+        return {'state': self._state, 'epoch': self._epoch, 'next_sample_index':
+                self._next_index, 'total_samples': total, 'section': section,
+                'error': self._error}
+
+    def _publish_status(self) -> None:
+        self._pub_status.publish(String(data=json.dumps(self._status_dict())))
+
+    def _publish_done(self, done: bool) -> None:
+        self._pub_done.publish(Bool(data=done))
+
+    def _publish_diagnostics(self) -> None:
+        status = self._status_dict()
+        elapsed = time.monotonic() - self._started_at if self._started_at else 0.0
+        rate = self._experiment.sample_rate_Hz if self._experiment else 0.0
+        values = dict(status)
+        values.update({'blocks_sent': self._blocks_sent,
+                       'elapsed_s': f'{elapsed:.3f}',
+                       'sample_rate_Hz': rate,
+                       'rejected_acknowledgements': self._rejected_acks})
+        if self._clock_pacer is not None and self._state == 'running':
+            lag = self._clock_pacer.lag_s(time.monotonic(), self._next_index, rate)
+            values['lag_s'] = f'{lag:.6f}'
+        level = DiagnosticStatus.ERROR if self._state == 'error' else DiagnosticStatus.OK
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [diagnostic_status(f'{self.get_name()}: excitation',
+                                        self.get_fully_qualified_name(), level,
+                                        self._error or self._state, values)]
+        self._pub_diag.publish(msg)
+
+
+def main(args=None) -> int:
+    """
+    Run the signal_generator node until shutdown.
+
+    Parameters
+    ----------
+    args : list of str, optional
+        Command-line arguments (``--ros-args ...``).
+
+    Returns
+    -------
+    int
+        Process exit code.
+    """
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = SignalGeneratorNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,62 @@
+"""
+Shared fixtures: an isolated ROS context, executors, node processes and cleanup.
+
+Importing this file forces loopback-only discovery and the session's domain id before
+any test imports rclpy.
+"""
+
+from pathlib import Path
+
+import pytest
+
+import ros_harness
+
+ros_harness.isolate_environment()
+
+
+@pytest.fixture
+def ros_context():
+    """An initialised rclpy context of its own, shut down after the test."""
+    import rclpy
+    from rclpy.context import Context
+
+    context = Context()
+    rclpy.init(context=context, domain_id=ros_harness.session_domain_id())
+    try:
+        yield context
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+@pytest.fixture
+def executor(ros_context):
+    """A single-threaded executor on the test's context; its nodes are destroyed after."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    ex = SingleThreadedExecutor(context=ros_context)
+    yield ex
+    for node in list(ex.get_nodes()):
+        ex.remove_node(node)
+        node.destroy_node()
+    ex.shutdown(timeout_sec=1.0)
+
+
+@pytest.fixture
+def processes(tmp_path):
+    """Start node processes with ``processes.start(argv)``; all are stopped after the test."""
+    started = []
+
+    class Starter:
+        def start(self, argv, env=None, cwd=None):
+            proc = ros_harness.NodeProcess(argv, Path(tmp_path) / 'logs', env=env, cwd=cwd)
+            started.append(proc)
+            return proc
+
+    yield Starter()
+    for proc in started:
+        proc.stop()
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """Clean Fast DDS shared-memory leftovers of any process that died."""
+    ros_harness.clean_shared_memory()

@@ -1,0 +1,274 @@
+"""
+Test harness for real rclpy nodes over real DDS, kept on this machine.
+
+Every ROS process started here gets ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and the
+session's distinct ``ROS_DOMAIN_ID``. Waits are bounded by timeouts and never fixed sleeps;
+processes are ended by the id we started them with.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from typing import Callable, Dict, List, Optional, Sequence
+
+DISCOVERY_TIMEOUT_S = 10.0
+
+
+def session_domain_id() -> int:
+    """
+    The ROS domain id of this test session.
+
+    Returns
+    -------
+    int
+        ``ROS_DOMAIN_ID`` when set by the test command, else 100 + pid % 100.
+    """
+    value = os.environ.get('ROS_DOMAIN_ID', '')
+    return int(value) if value.isdigit() else 100 + os.getpid() % 100
+
+
+def isolate_environment() -> None:
+    """Force loopback-only discovery and the session's domain id for this process."""
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    os.environ['ROS_DOMAIN_ID'] = str(session_domain_id())
+    os.environ.pop('ROS_STATIC_PEERS', None)
+
+
+def child_environment(extra: Optional[Dict[str, str]] = None) -> Dict[str, str]:
+    """
+    The environment for a child ROS process.
+
+    Parameters
+    ----------
+    extra : dict, optional
+        Variables to add or override (discovery settings cannot be overridden).
+
+    Returns
+    -------
+    dict
+        A copy of this process's environment, isolated.
+    """
+    env = dict(os.environ)
+    env.update(extra or {})
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env['ROS_DOMAIN_ID'] = str(session_domain_id())
+    env.pop('ROS_STATIC_PEERS', None)
+    env['PYTHONUNBUFFERED'] = '1'
+    return env
+
+
+def wait_until(predicate: Callable[[], bool], timeout_s: float,
+               step: Optional[Callable[[], None]] = None, poll_s: float = 0.01) -> bool:
+    """
+    Call ``step`` (for example an executor's ``spin_once``) until ``predicate`` holds.
+
+    Parameters
+    ----------
+    predicate : callable
+        The condition.
+    timeout_s : float
+        Upper bound on the wait [s].
+    step : callable, optional
+        Called between checks; a short sleep when absent.
+    poll_s : float
+        Sleep between checks when there is no ``step`` [s].
+
+    Returns
+    -------
+    bool
+        Whether the condition held before the timeout.
+    """
+    deadline = time.monotonic() + timeout_s
+    while True:
+        if predicate():
+            return True
+        if time.monotonic() >= deadline:
+            return False
+        if step is not None:
+            step()
+        else:
+            time.sleep(poll_s)
+
+
+def spin_until(executor, predicate: Callable[[], bool], timeout_s: float) -> bool:
+    """
+    Spin an executor until ``predicate`` holds or the timeout passes.
+
+    Parameters
+    ----------
+    executor : rclpy.executors.Executor
+        The executor with the test's nodes.
+    predicate : callable
+        The condition.
+    timeout_s : float
+        Upper bound [s].
+
+    Returns
+    -------
+    bool
+        Whether the condition held in time.
+    """
+    return wait_until(predicate, timeout_s, lambda: executor.spin_once(timeout_sec=0.02))
+
+
+class NodeProcess:
+    """
+    A node (or any command) in a child process, stopped by its own process id.
+
+    Parameters
+    ----------
+    argv : sequence of str
+        The command.
+    log_dir : pathlib.Path
+        Where stdout and stderr are written.
+    env : dict, optional
+        Extra environment variables.
+    cwd : pathlib.Path, optional
+        Working directory.
+    """
+
+    def __init__(self, argv: Sequence[str], log_dir: Path,
+                 env: Optional[Dict[str, str]] = None, cwd: Optional[Path] = None) -> None:
+        log_dir.mkdir(parents=True, exist_ok=True)
+        name = Path(argv[0]).name
+        self.stdout_path = log_dir / f'{name}.{time.monotonic_ns()}.out'
+        self.stdout = open(self.stdout_path, 'wb')
+        self.argv = list(argv)
+        self.proc = subprocess.Popen(self.argv, stdout=self.stdout, stderr=subprocess.STDOUT,
+                                     env=child_environment(env), cwd=cwd)
+        self.pid = self.proc.pid
+        self.killed = False
+
+    def output(self) -> str:
+        """
+        What the process has printed so far.
+
+        Returns
+        -------
+        str
+            Its stdout and stderr.
+        """
+        self.stdout.flush()
+        return self.stdout_path.read_text(errors='replace')
+
+    def alive(self) -> bool:
+        """
+        Whether the process is still running.
+
+        Returns
+        -------
+        bool
+            True while it runs.
+        """
+        return self.proc.poll() is None
+
+    def stop(self, timeout_s: float = 10.0) -> int:
+        """
+        Interrupt the process (SIGINT), then kill it if it does not end in time.
+
+        Parameters
+        ----------
+        timeout_s : float
+            How long to wait after SIGINT [s].
+
+        Returns
+        -------
+        int
+            Its exit code.
+        """
+        if self.proc.poll() is None:
+            os.kill(self.pid, signal.SIGINT)
+            try:
+                self.proc.wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                os.kill(self.pid, signal.SIGKILL)
+                self.proc.wait(timeout=timeout_s)
+                self.killed = True
+        self.stdout.close()
+        if self.killed or self.proc.returncode not in (0, -signal.SIGINT):
+            clean_shared_memory()
+        return self.proc.returncode
+
+    def kill(self) -> None:
+        """Kill the process at once (SIGKILL) and clean its shared-memory leftovers."""
+        if self.proc.poll() is None:
+            os.kill(self.pid, signal.SIGKILL)
+            self.proc.wait(timeout=10)
+            self.killed = True
+        self.stdout.close()
+        clean_shared_memory()
+
+
+def clean_shared_memory() -> None:
+    """Remove Fast DDS shared-memory segments and ports left by dead processes."""
+    fastdds = shutil.which('fastdds') or str(Path(sys.executable).parent / 'fastdds')
+    if Path(fastdds).exists():
+        subprocess.run([fastdds, 'shm', 'clean'], stdout=subprocess.DEVNULL,
+                       stderr=subprocess.DEVNULL, timeout=30, check=False)
+
+
+def node_executable(name: str) -> List[str]:
+    """
+    The command that runs a node the way ``ros2 run emfc_ros <name>`` does.
+
+    Parameters
+    ----------
+    name : str
+        Executable name, for example ``'signal_generator'``.
+
+    Returns
+    -------
+    list of str
+        ``[<prefix>/lib/emfc_ros/<name>]`` resolved through ``AMENT_PREFIX_PATH``.
+    """
+    return [str(resolve_ros2run('emfc_ros', name))]
+
+
+def resolve_ros2run(package: str, executable: str,
+                    ament_prefix_path: Optional[str] = None) -> Path:
+    """
+    Find an executable as ``ros2 run`` does.
+
+    The first prefix in ``AMENT_PREFIX_PATH`` with the marker
+    ``share/ament_index/resource_index/packages/<package>`` is the package prefix; the
+    executable must be a file with the executable bit in ``<prefix>/lib/<package>``.
+
+    Parameters
+    ----------
+    package : str
+        Package name.
+    executable : str
+        Executable name.
+    ament_prefix_path : str, optional
+        The search path; ``AMENT_PREFIX_PATH`` (or the interpreter prefix) when absent.
+
+    Returns
+    -------
+    pathlib.Path
+        The executable.
+
+    Raises
+    ------
+    LookupError
+        If the package or the executable is not found.
+    """
+    search = ament_prefix_path
+    if search is None:
+        search = os.environ.get('AMENT_PREFIX_PATH') or sys.prefix
+    for prefix in search.split(os.pathsep):
+        if not prefix:
+            continue
+        marker = Path(prefix, 'share', 'ament_index', 'resource_index', 'packages', package)
+        if marker.is_file():
+            path = Path(prefix, 'lib', package, executable)
+            if path.is_file() and os.access(path, os.X_OK):
+                return path
+            raise LookupError(f'{package} found in {prefix} but {path} is not an '
+                              'executable file')
+    raise LookupError(f'package {package} not found in AMENT_PREFIX_PATH={search!r}')

@@ -1,0 +1,49 @@
+#!/usr/bin/env bash
+# Create or refresh the virtual environment .venv (or $EMFC_VENV) with emfc_ros installed
+# the way a user installs it (`pip install .`, pulling the ROS 2 Jazzy wheels from PyPI),
+# plus what the tests and benchmarks need. Safe to run again: dependencies are installed
+# once per change of setup.py or of this script; the package itself every time.
+set -euo pipefail
+here=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+venv=${EMFC_VENV:-$here/.venv}
+
+py=${PYTHON:-}
+if [ -z "$py" ]; then
+  for candidate in python3.11 python3; do
+    if command -v "$candidate" >/dev/null 2>&1 &&
+       "$candidate" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
+      py=$candidate
+      break
+    fi
+  done
+fi
+if [ -z "$py" ]; then
+  echo "setup_env: Python 3.11 is required (the ROS 2 Jazzy wheels exist for CPython 3.11 only)" >&2
+  exit 1
+fi
+
+# The tests run in a private network namespace when root: that needs `ip` (iproute2).
+if [ "$(id -u)" = 0 ] && ! command -v ip >/dev/null 2>&1 && command -v apt-get >/dev/null; then
+  echo "setup_env: installing iproute2 for the private network namespace" >&2
+  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq iproute2 >/dev/null
+fi
+
+if [ ! -x "$venv/bin/python" ]; then
+  echo "setup_env: creating $venv" >&2
+  "$py" -m venv "$venv"
+fi
+stamp="$venv/.emfc-deps-$(cat "$here/setup.py" "$here/tools/setup_env.sh" | sha256sum | cut -c1-16)"
+if [ ! -f "$stamp" ]; then
+  echo "setup_env: installing dependencies into $venv (first run takes a few minutes)" >&2
+  # colcon needs setuptools<80 (design brief section 2).
+  "$venv/bin/python" -m pip install -q 'setuptools<80' wheel
+  "$venv/bin/python" -m pip install -q "$here[fast,plot,test]" \
+    'colcon-common-extensions' 'flake8>=6' 'flake8-quotes' 'flake8-import-order' \
+    'flake8-docstrings' 'pep8-naming'
+  rm -f "$venv"/.emfc-deps-*
+  touch "$stamp"
+fi
+# The package itself, non-editable so that its data files land in $venv/share and
+# $venv/lib/emfc_ros as `pip install .` puts them for users.
+"$venv/bin/python" -m pip install -q --no-deps --no-build-isolation --force-reinstall "$here" \
+  2> >(grep -v 'is ignored: it is neither a file nor a directory' >&2)

@@ -1,0 +1,17 @@
+#!/usr/bin/env bash
+# Run the test suite on a fresh machine: set up .venv, then pytest with loopback-only DDS,
+# inside a private network namespace when root. Extra arguments go to pytest.
+set -euo pipefail
+here=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+venv=${EMFC_VENV:-$here/.venv}
+"$here/tools/setup_env.sh"
+# shellcheck source=tools/ros_env.sh
+. "$here/tools/ros_env.sh"
+cd "$here"
+cmd=("$venv/bin/pytest" -q -p no:cacheprovider "$@")
+if [ "$(id -u)" = 0 ] && [ -z "${EMFC_IN_NETNS:-}" ] && command -v unshare >/dev/null; then
+  echo "test: running in a private network namespace (loopback only), ROS_DOMAIN_ID=$ROS_DOMAIN_ID" >&2
+  exec unshare -n -- env EMFC_IN_NETNS=1 bash -c 'ip link set lo up && exec "$@"' _ "${cmd[@]}"
+fi
+echo "test: not root; loopback-only discovery, ROS_DOMAIN_ID=$ROS_DOMAIN_ID" >&2
+exec "${cmd[@]}"
