@@ -7,8 +7,8 @@ ROS 2 Jazzy install. ``ros2 run emfc_ros <node>`` finds the small wrapper script
 ``data_files`` puts in ``<prefix>/lib/emfc_ros``; console scripts get ``emfc-*`` names.
 """
 
-import os
 from glob import glob
+import os
 
 from setuptools import find_packages, setup
 

@@ -60,6 +60,8 @@ def child_environment(extra: Optional[Dict[str, str]] = None) -> Dict[str, str]:
     env['ROS_DOMAIN_ID'] = str(session_domain_id())
     env.pop('ROS_STATIC_PEERS', None)
     env['PYTHONUNBUFFERED'] = '1'
+    # Node wrappers run `python3` from PATH, as in an activated virtual environment.
+    env['PATH'] = os.pathsep.join([str(Path(sys.executable).parent), env.get('PATH', '')])
     return env
 
 

@@ -60,7 +60,8 @@ PARAMETERS = {
     'window_blocks': (8, 'consumer pacing: blocks in flight beyond the acknowledged index '
                          '[blocks], 1 to 1000'),
     'autostart': (True, 'arm and start when the node comes up'),
-    'tick_period_s': (0.001, 'period of the publishing timer [s], 1e-4 to 1'),
+    'tick_period_s': (0.0, 'period of the publishing timer [s], 1e-4 to 1; 0: automatic '
+                           '(half the lead time, 1 ms to 20 ms)'),
     'max_blocks_per_tick': (64, 'most blocks published per timer tick [blocks], 1 to 10000'),
 }
 
@@ -105,7 +106,9 @@ class SignalGeneratorNode(Node):
         self.create_service(Trigger, 'stop', self._srv_stop)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
-        self._timer = self.create_timer(self._param('tick_period_s'), self._tick)
+        self._timer = None
+        self._block_size = 0
+        self._max_blocks_per_tick = 0
         self.create_timer(1.0, self._publish_diagnostics)
         self._publish_done(False)
         ok, reason = self._arm()
@@ -156,10 +159,11 @@ class SignalGeneratorNode(Node):
                     successful=False, reason=f'pacing must be one of {list(PACING)}, '
                                              f'got {p.value!r}')
             elif p.name == 'tick_period_s' and (
-                    p.type_ != Parameter.Type.DOUBLE or not 1e-4 <= p.value <= 1.0):
+                    p.type_ != Parameter.Type.DOUBLE or not (
+                        p.value == 0.0 or 1e-4 <= p.value <= 1.0)):
                 return SetParametersResult(
-                    successful=False, reason=f'tick_period_s must be a float from 1e-4 to 1 s, '
-                                             f'got {p.value!r}')
+                    successful=False, reason='tick_period_s must be 0 (automatic) or a float '
+                                             f'from 1e-4 to 1 s, got {p.value!r}')
             elif p.name == 'autostart' and p.type_ != Parameter.Type.BOOL:
                 return SetParametersResult(successful=False,
                                            reason='autostart must be true or false')
@@ -204,25 +208,39 @@ class SignalGeneratorNode(Node):
             ok, reason = self._arm()
             if not ok:
                 return False, reason
-        block = int(self._param('block_size'))
+        # Read once per run: the hot path touches no parameter.
+        block = self._block_size = int(self._param('block_size'))
+        self._max_blocks_per_tick = int(self._param('max_blocks_per_tick'))
         rate = self._experiment.sample_rate_Hz
         self._started_at = time.monotonic()
+        lead_blocks = int(self._param('lead_blocks'))
         if self._param('pacing') == 'wall':
-            self._clock_pacer = ClockPacer(rate, block, int(self._param('lead_blocks')),
-                                           self._started_at)
+            self._clock_pacer = ClockPacer(rate, block, lead_blocks, self._started_at)
             self._consumer_pacer = None
         else:
             self._consumer_pacer = ConsumerPacer(block, int(self._param('window_blocks')))
             self._clock_pacer = None
+        period = float(self._param('tick_period_s'))
+        if period == 0.0:
+            period = min(0.02, max(0.001, 0.5 * max(lead_blocks, 1) * block / rate))
+        self._restart_timer(period)
         self._state = 'running'
         self._publish_description(start_time_ns=self.get_clock().now().nanoseconds)
         self._publish_status()
         self._tick()
         return True, f'running epoch {self._epoch}'
 
+    def _restart_timer(self, period_s: float) -> None:
+        if self._timer is not None:
+            self.destroy_timer(self._timer)
+            self._timer = None
+        if period_s > 0:
+            self._timer = self.create_timer(period_s, self._tick)
+
     def _stop(self) -> tuple:
         if self._state != 'running':
             return False, f'not running (state {self._state})'
+        self._restart_timer(0.0)
         self._state = 'stopped'
         self._publish_status()
         return True, f'stopped at sample {self._next_index}'
@@ -260,13 +278,13 @@ class SignalGeneratorNode(Node):
             return
         experiment = self._experiment
         total = experiment.total_samples
-        block = int(self._param('block_size'))
+        block = self._block_size
         if self._clock_pacer is not None:
             allowed = self._clock_pacer.allowed_index(time.monotonic())
         else:
             allowed = self._consumer_pacer.allowed_index()
         allowed = min(allowed, total)
-        budget = int(self._param('max_blocks_per_tick'))
+        budget = self._max_blocks_per_tick
         rate = experiment.sample_rate_Hz
         section_before = experiment.section_index_at(self._next_index)
         while self._next_index < allowed and budget > 0:
@@ -281,6 +299,7 @@ class SignalGeneratorNode(Node):
                 experiment.section_index_at(self._next_index) != section_before:
             self._publish_status()
         if self._next_index >= total:
+            self._restart_timer(0.0)
             self._state = 'done'
             self._publish_done(True)
             self._publish_status()

@@ -72,7 +72,8 @@ def test_resolver_refuses_missing_package_and_non_executable(tmp_path):
 def test_pip_install_into_a_prefix(tmp_path, processes, executor, ros_context):
     src = _copy_source(tmp_path / 'src')
     prefix = tmp_path / 'prefix'
-    subprocess.run([sys.executable, '-m', 'pip', 'install', '-q', '--no-deps',
+    # --ignore-installed: otherwise pip uninstalls the copy in the running environment.
+    subprocess.run([sys.executable, '-m', 'pip', 'install', '-q', '--no-deps', '--ignore-installed',
                     '--no-build-isolation', '--prefix', str(prefix), str(src)],
                    check=True, timeout=300, cwd=tmp_path)
     site = prefix / 'lib' / f'python{sys.version_info[0]}.{sys.version_info[1]}' / \
