@@ -28,6 +28,10 @@ if [ "$(id -u)" = 0 ] && ! command -v ip >/dev/null 2>&1 && command -v apt-get >
   apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq iproute2 >/dev/null
 fi
 
+# pip here warns about every configured local index folder that does not exist: hide those
+# lines only, keep everything else (errors included).
+quiet_pip() { grep -v 'is ignored: it is neither a file nor a directory' || true; }
+
 if [ ! -x "$venv/bin/python" ]; then
   echo "setup_env: creating $venv" >&2
   "$py" -m venv "$venv"
@@ -36,14 +40,14 @@ stamp="$venv/.emfc-deps-$(cat "$here/setup.py" "$here/tools/setup_env.sh" | sha2
 if [ ! -f "$stamp" ]; then
   echo "setup_env: installing dependencies into $venv (first run takes a few minutes)" >&2
   # colcon needs setuptools<80 (design brief section 2).
-  "$venv/bin/python" -m pip install -q 'setuptools<80' wheel
+  "$venv/bin/python" -m pip install -q 'setuptools<80' wheel 2>&1 | quiet_pip
   "$venv/bin/python" -m pip install -q "$here[fast,plot,test]" \
     'colcon-common-extensions' 'flake8>=6' 'flake8-quotes' 'flake8-import-order' \
-    'flake8-docstrings' 'pep8-naming'
+    'flake8-docstrings' 'pep8-naming' 2>&1 | quiet_pip
   rm -f "$venv"/.emfc-deps-*
   touch "$stamp"
 fi
 # The package itself, non-editable so that its data files land in $venv/share and
 # $venv/lib/emfc_ros as `pip install .` puts them for users.
 "$venv/bin/python" -m pip install -q --no-deps --no-build-isolation --force-reinstall "$here" \
-  2> >(grep -v 'is ignored: it is neither a file nor a directory' >&2)
+  2>&1 | quiet_pip

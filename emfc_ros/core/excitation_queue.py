@@ -1,0 +1,176 @@
+"""
+A sample-exact FIFO of actuator setpoints fed by excitation blocks.
+
+The plant simulator and the bridge read setpoints sample by sample on their own clock; the
+excitation arrives in blocks with sample indices. This queue keeps the two aligned: a new
+stream epoch (or the first block) restarts it, contiguous blocks are appended, a gap is
+filled with the safe values (and counted, never hidden), late, duplicate and overlapping
+blocks are dropped and counted, and reading more than is queued pads with the safe values
+(an underrun, counted). A gap too large to fill resynchronises the queue at the new block:
+``head_index`` jumps, so whoever stamps output with it shows the same gap.
+"""
+
+from __future__ import annotations
+
+import collections
+from typing import Deque, Sequence, Tuple
+
+import numpy as np
+
+from emfc_ros.core.blocks import Block, Continuity, SequenceTracker
+from emfc_ros.core.errors import BlockError
+
+
+class ExcitationQueue:
+    """
+    FIFO of setpoint samples, ``n_channels`` rows.
+
+    Parameters
+    ----------
+    safe_values : sequence of float
+        Per-channel value used for gaps and underruns (for example 0 V).
+    max_samples : int
+        Most samples held; pushing beyond it drops the block (counted as overflow).
+    """
+
+    def __init__(self, safe_values: Sequence[float], max_samples: int = 10_000_000) -> None:
+        self.safe = np.asarray(safe_values, dtype=np.float64).reshape(-1, 1)
+        self.n_channels = int(self.safe.shape[0])
+        self.max_samples = int(max_samples)
+        self.tracker = SequenceTracker()
+        self._chunks: Deque[np.ndarray] = collections.deque()
+        self._offset = 0          # samples already read from the first chunk
+        self._queued = 0
+        self.head_index = 0       # excitation index of the next sample to be read
+        self.epoch = None
+        self.underrun_samples = 0
+        self.gap_filled_samples = 0
+        self.dropped_blocks = 0
+        self.overflow_blocks = 0
+        self.resyncs = 0
+        self.resync_dropped_samples = 0
+
+    @property
+    def queued(self) -> int:
+        """
+        Samples waiting to be read.
+
+        Returns
+        -------
+        int
+            The count.
+        """
+        return self._queued
+
+    def push(self, block: Block) -> Continuity:
+        """
+        Add a received block.
+
+        Parameters
+        ----------
+        block : Block
+            The excitation block; its channel count must match.
+
+        Returns
+        -------
+        Continuity
+            How the block continued the stream (duplicates and the like are dropped).
+
+        Raises
+        ------
+        BlockError
+            If the channel count differs.
+        """
+        if block.samples.shape[0] != self.n_channels:
+            raise BlockError(f'excitation block has {block.samples.shape[0]} channels, '
+                             f'expected {self.n_channels}')
+        expected = self.tracker.expected
+        kind = self.tracker.observe(block.first_sample_index, block.n_samples, block.epoch)
+        if kind in (Continuity.FIRST, Continuity.RESTART):
+            self._chunks.clear()
+            self._offset = 0
+            self._queued = 0
+            self.head_index = block.first_sample_index
+            self.epoch = block.epoch
+        elif kind is Continuity.GAP:
+            missing = block.first_sample_index - expected
+            if self._queued + missing + block.n_samples <= self.max_samples:
+                self._append(np.repeat(self.safe, missing, axis=1))
+                self.gap_filled_samples += missing
+            else:
+                # Too large to fill: resynchronise at the block, dropping what is queued.
+                # The reader sees the jump in head_index, so the gap stays visible.
+                self.resync_dropped_samples += self._queued
+                self.resyncs += 1
+                self._chunks.clear()
+                self._offset = 0
+                self._queued = 0
+                self.head_index = block.first_sample_index
+        elif kind is not Continuity.CONTIGUOUS:
+            self.dropped_blocks += 1
+            return kind
+        if self._queued + block.n_samples > self.max_samples:
+            # Dropped: rewind the tracker so the next block shows the hole as a gap, which
+            # is then filled with safe values and counted, never hidden.
+            self.overflow_blocks += 1
+            self.tracker.expected = block.first_sample_index
+            return kind
+        self._append(np.array(block.samples, dtype=np.float64))
+        return kind
+
+    def _append(self, samples: np.ndarray) -> None:
+        if samples.shape[1]:
+            self._chunks.append(samples)
+            self._queued += samples.shape[1]
+
+    def pop(self, n: int) -> Tuple[np.ndarray, int]:
+        """
+        Read the next ``n`` samples, padding with the safe values if fewer are queued.
+
+        Parameters
+        ----------
+        n : int
+            Samples to read.
+
+        Returns
+        -------
+        samples : numpy.ndarray
+            Shape ``(n_channels, n)``.
+        real : int
+            How many of them came from the stream (the rest are padding).
+        """
+        out = np.empty((self.n_channels, n))
+        filled = 0
+        while filled < n and self._chunks:
+            chunk = self._chunks[0]
+            take = min(n - filled, chunk.shape[1] - self._offset)
+            out[:, filled:filled + take] = chunk[:, self._offset:self._offset + take]
+            filled += take
+            self._offset += take
+            if self._offset == chunk.shape[1]:
+                self._chunks.popleft()
+                self._offset = 0
+        self._queued -= filled
+        self.head_index += filled
+        if filled < n:
+            out[:, filled:] = self.safe
+            self.underrun_samples += n - filled
+        return out, filled
+
+    def counters(self) -> dict:
+        """
+        Stream defects and queue figures.
+
+        Returns
+        -------
+        dict
+            Tracker counters plus gap-filled, underrun, dropped and overflow counts.
+        """
+        out = self.tracker.counters()
+        out.update({'queued_samples': self._queued,
+                    'gap_filled_samples': self.gap_filled_samples,
+                    'underrun_samples': self.underrun_samples,
+                    'dropped_blocks': self.dropped_blocks,
+                    'overflow_blocks': self.overflow_blocks, 'resyncs': self.resyncs,
+                    'resync_dropped_samples': self.resync_dropped_samples})
+        return out
