@@ -118,6 +118,14 @@ class ConverterParameters:
         Position sensor noise [m rms] (2e-9 m).
     coil_current_noise_A_rms, load_changer_current_noise_A_rms : float
         Amplifier output current noise [A rms] (1e-7 A).
+    stop_stiffness_N_per_m : float
+        Stiffness of the mechanical stops at the lever end [N/m] (1e6 N/m: about 2 um of
+        penetration at the full coil force). Optional in a configuration (default used).
+    stop_damping_Ns_per_m : float
+        Damping of the mechanical stops while engaged [N s/m] (50 N s/m). Optional.
+    current_monitor_V_per_A : float
+        Scaling of the amplifiers' current monitor outputs read by the ADC [V/A] (100 V/A:
+        +/-0.1 A uses +/-10 V). Optional.
     """
 
     adc_bits: int = field(default=16, metadata={'min': 1, 'max': 32, 'int': True})
@@ -131,6 +139,12 @@ class ConverterParameters:
     sensor_noise_m_rms: float = _p(2.0e-9, 0.0, 1.0e-3)
     coil_current_noise_A_rms: float = _p(1.0e-7, 0.0, 1.0)
     load_changer_current_noise_A_rms: float = _p(1.0e-7, 0.0, 1.0)
+    stop_stiffness_N_per_m: float = field(default=1.0e6, metadata={
+        'min': 0.0, 'max': 1.0e9, 'exclusive': True, 'optional': True})
+    stop_damping_Ns_per_m: float = field(default=50.0, metadata={
+        'min': 0.0, 'max': 1.0e6, 'exclusive': False, 'optional': True})
+    current_monitor_V_per_A: float = field(default=100.0, metadata={
+        'min': 0.0, 'max': 1.0e6, 'exclusive': True, 'optional': True})
 
 
 #: Section names of the ``balance`` mapping and the peripheral classes with their single key.
@@ -335,6 +349,8 @@ def _flat_from_mapping(klass: Any, cfg: Mapping[str, Any], path: str, base: Any)
         kwargs: dict = {}
         if base is not None:
             kwargs['default'] = getattr(base, f.name)
+        elif meta.get('optional'):
+            kwargs['default'] = f.default
         try:
             if meta.get('int'):
                 values[f.name] = get_int(cfg, f.name, path, minimum=meta['min'],
