@@ -1,0 +1,464 @@
+"""
+Grey-box parameter estimation: a user simulation fitted to measured data sections.
+
+The caller supplies ``simulate(params, inputs) -> outputs`` (``params`` a dict of all
+parameters by name), the data as named sections (inputs and measured outputs, each an array of
+shape (n,) or (n, channels)) and one :class:`ParameterSpec` per parameter.
+
+Objective (identical for both optimisers): the residual vector stacks, per section ``s`` and
+output column ``c``, ``sqrt(w_s / n_s) (y_hat - y) / std(y_c)``, so the cost
+``sum r^2 = sum_s w_s sum_c mean((y_hat - y)^2) / var(y_c)`` is a dimensionless normalised
+mean-square error (about ``(1 - fit/100)^2`` per section and output). Sections of different
+length and units thus count by their weight only.
+
+Optimisers:
+
+* ``'least_squares'``: :func:`scipy.optimize.least_squares`, trust-region reflective with the
+  bounds, ``x_scale`` = the parameter scales, on the residual vector.
+* ``'pattern_search'``: :func:`~emfc_ros.core.ident.pattern_search.pattern_search` (MATLAB
+  defaults) on the cost, in the scaled variables ``x_i = theta_i / scale_i`` so a mesh size of
+  1 is a change of one scale (by default the magnitude of the initial value) in every
+  parameter.
+
+Scale of a parameter: ``spec.scale`` if given, else ``|initial|``, else half the bound range
+when finite, else 1.
+
+Uncertainty: ``Cov = s^2 (J^T J)^-1`` with ``s^2 = sum r^2 / (m - p)`` and ``J`` the
+Jacobian of the residual vector with respect to the free parameters at the optimum
+(``least_squares``' own Jacobian, or central differences with steps ``1e-6 scale`` for
+pattern search; these extra simulations are counted in ``n_evaluations`` but not in
+``optimizer_evaluations``). This assumes white residuals of the weighted size; the residual
+tests tell whether that holds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+import time
+from typing import Callable, Dict, Mapping, Optional, Sequence, Tuple
+
+import numpy as np
+from scipy import linalg, optimize
+
+from emfc_ros.core.ident.errors import IdentificationError
+from emfc_ros.core.ident.metrics import fit_percent, input_correlation_test, whiteness_test
+from emfc_ros.core.ident.pattern_search import pattern_search, PatternSearchOptions
+
+METHODS = ('least_squares', 'pattern_search')
+Simulate = Callable[[Dict[str, float], np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class ParameterSpec:
+    """
+    One model parameter: start value, bounds, free or fixed, and scale.
+
+    Attributes
+    ----------
+    name : str
+        Parameter name (key of the dict passed to ``simulate``).
+    initial : float
+        Start value (the value used when fixed).
+    lower, upper : float
+        Bounds (may be infinite).
+    free : bool
+        Estimated when true, held at ``initial`` when false.
+    scale : float, optional
+        Typical magnitude (see the module docstring for the default).
+    unit : str
+        Unit for reports.
+    """
+
+    name: str
+    initial: float
+    lower: float = -math.inf
+    upper: float = math.inf
+    free: bool = True
+    scale: Optional[float] = None
+    unit: str = ''
+
+    def resolved_scale(self) -> float:
+        """
+        The scale used for this parameter.
+
+        Returns
+        -------
+        float
+            ``scale``, else ``|initial|``, else half the finite bound range, else 1.
+        """
+        if self.scale is not None:
+            return float(self.scale)
+        if self.initial != 0.0:
+            return abs(float(self.initial))
+        if math.isfinite(self.lower) and math.isfinite(self.upper) and self.upper > self.lower:
+            return 0.5 * (self.upper - self.lower)
+        return 1.0
+
+
+@dataclass(frozen=True)
+class DataSection:
+    """
+    A named stretch of measured data.
+
+    Attributes
+    ----------
+    name : str
+        Section name (e.g. ``'chirp coil'``).
+    inputs : ndarray
+        Inputs, shape (n,) or (n, inputs).
+    outputs : ndarray
+        Measured outputs, shape (n,) or (n, outputs).
+    weight : float
+        Relative weight in the objective (> 0).
+    """
+
+    name: str
+    inputs: np.ndarray
+    outputs: np.ndarray
+    weight: float = 1.0
+
+
+@dataclass(frozen=True)
+class SectionFit:
+    """
+    How well the final model reproduces one section.
+
+    Attributes
+    ----------
+    name : str
+        Section name.
+    fit_percent : ndarray
+        MATLAB ``compare`` fit per output [%].
+    whiteness_fraction : float
+        Fraction of residual autocorrelation lags 1..25 inside the 99 % band (mean over
+        outputs).
+    input_correlation_fraction : float
+        Fraction of residual-input cross-correlation lags -25..25 inside the 99 % band (mean
+        over input-output pairs; NaN for constant inputs).
+    rms_error : ndarray
+        Root-mean-square of ``y - y_hat`` per output.
+    """
+
+    name: str
+    fit_percent: np.ndarray
+    whiteness_fraction: float
+    input_correlation_fraction: float
+    rms_error: np.ndarray
+
+
+@dataclass(frozen=True)
+class GreyboxResult:
+    """
+    Estimated parameters, their uncertainty and the quality of the fit.
+
+    Attributes
+    ----------
+    parameters : dict of str to float
+        All parameters (free estimated, fixed as given).
+    standard_errors : dict of str to float
+        Standard errors (0 for fixed parameters, NaN when not computed).
+    correlation : ndarray
+        Correlation matrix of the free parameters (order of ``free_names``).
+    free_names : tuple of str
+        Names of the free parameters.
+    cost : float
+        Final objective ``sum r^2``.
+    n_evaluations : int
+        All calls of ``simulate`` (optimiser plus Jacobian for the uncertainty).
+    optimizer_evaluations : int
+        Calls made by the optimiser.
+    time_s : float
+        Wall time of the whole fit [s].
+    method : str
+        ``'least_squares'`` or ``'pattern_search'``.
+    success : bool
+        Whether the optimiser ended on a tolerance rather than a budget or failure.
+    exit_reason : str
+        The optimiser's message.
+    sections : tuple of SectionFit
+        Per-section fit and residual tests.
+    """
+
+    parameters: Dict[str, float]
+    standard_errors: Dict[str, float]
+    correlation: np.ndarray
+    free_names: Tuple[str, ...]
+    cost: float
+    n_evaluations: int
+    optimizer_evaluations: int
+    time_s: float
+    method: str
+    success: bool
+    exit_reason: str
+    sections: Tuple[SectionFit, ...]
+
+    def summary(self) -> str:
+        """
+        A short plain-text report.
+
+        Returns
+        -------
+        str
+            Parameters with standard errors, section fits and the exit reason.
+        """
+        lines = [f'{self.method}: {self.exit_reason} ({self.optimizer_evaluations} '
+                 f'evaluations, {self.time_s:.2f} s, cost {self.cost:.4g})']
+        for name, value in self.parameters.items():
+            se = self.standard_errors[name]
+            tag = '' if name in self.free_names else ' (fixed)'
+            lines.append(f'  {name} = {value:.6g} +/- {se:.2g}{tag}')
+        for sec in self.sections:
+            fits = ', '.join(f'{v:.2f} %' for v in np.atleast_1d(sec.fit_percent))
+            lines.append(f'  section {sec.name!r}: fit {fits}, white '
+                         f'{100 * sec.whiteness_fraction:.0f} %, input-uncorrelated '
+                         f'{100 * sec.input_correlation_fraction:.0f} %')
+        return '\n'.join(lines)
+
+
+class _Problem:
+    """Residuals of all sections for a vector of free parameters (in natural units)."""
+
+    def __init__(self, simulate: Simulate, sections: Sequence[DataSection],
+                 specs: Sequence[ParameterSpec]) -> None:
+        self.simulate = simulate
+        self.specs = list(specs)
+        self.free = [s for s in self.specs if s.free]
+        self.sections = []
+        for sec in sections:
+            y = np.asarray(sec.outputs, dtype=float)
+            y2 = y.reshape(y.shape[0], -1)
+            std = y2.std(axis=0)
+            std[std == 0.0] = 1.0
+            self.sections.append((sec, y, np.sqrt(sec.weight / y.shape[0]) / std))
+        self.evaluations = 0
+
+    def params(self, theta: np.ndarray) -> Dict[str, float]:
+        values = {s.name: float(s.initial) for s in self.specs}
+        for spec, value in zip(self.free, theta):
+            values[spec.name] = float(value)
+        return values
+
+    def outputs(self, theta: np.ndarray):
+        values = self.params(theta)
+        self.evaluations += 1
+        outs = []
+        for sec, y, _ in self.sections:
+            yh = np.asarray(self.simulate(values, np.asarray(sec.inputs, dtype=float)),
+                            dtype=float)
+            if yh.shape != y.shape:
+                raise IdentificationError(
+                    f'simulate returned shape {yh.shape} for section {sec.name!r}, expected '
+                    f'the measured shape {y.shape}')
+            outs.append(yh)
+        return outs
+
+    def residuals(self, theta: np.ndarray) -> np.ndarray:
+        try:
+            outs = self.outputs(theta)
+        except IdentificationError:
+            raise
+        except Exception:          # a failing simulation is a bad point
+            return np.full(sum(y.size for _, y, _ in self.sections), np.inf)
+        parts = [((yh - y).reshape(y.shape[0], -1) * w).ravel()
+                 for yh, (_, y, w) in zip(outs, self.sections)]
+        return np.concatenate(parts)
+
+
+def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
+                parameters: Sequence[ParameterSpec], *, method: str = 'least_squares',
+                options: Optional[PatternSearchOptions] = None,
+                max_nfev: Optional[int] = None, uncertainty: bool = True,
+                max_lag: int = 25) -> GreyboxResult:
+    """
+    Fit the free parameters of a simulation to measured sections.
+
+    Parameters
+    ----------
+    simulate : callable
+        ``simulate(params: dict, inputs: ndarray) -> outputs`` with the measured shape.
+    sections : sequence of DataSection
+        The data (at least one).
+    parameters : sequence of ParameterSpec
+        All parameters ``simulate`` needs, free or fixed (unique names).
+    method : {'least_squares', 'pattern_search'}
+        Optimiser (see the module docstring).
+    options : PatternSearchOptions, optional
+        Pattern-search settings (MATLAB defaults).
+    max_nfev : int, optional
+        Evaluation budget of ``least_squares`` (its default otherwise).
+    uncertainty : bool
+        Compute standard errors and correlations.
+    max_lag : int
+        Largest lag of the residual tests.
+
+    Returns
+    -------
+    GreyboxResult
+        Parameters, standard errors, correlation, counts, time, section fits, exit reason.
+
+    Raises
+    ------
+    IdentificationError
+        If the specification is inconsistent (names, bounds, shapes, no free parameter) or
+        the simulation fails at the start point.
+    """
+    if method not in METHODS:
+        raise IdentificationError(f'method must be one of {METHODS}, got {method!r}')
+    _check_specs(parameters)
+    _check_sections(sections)
+    start = time.perf_counter()
+    problem = _Problem(simulate, sections, parameters)
+    free = problem.free
+    theta0 = np.array([s.initial for s in free], dtype=float)
+    lower = np.array([s.lower for s in free], dtype=float)
+    upper = np.array([s.upper for s in free], dtype=float)
+    scales = np.array([s.resolved_scale() for s in free], dtype=float)
+    r0 = problem.residuals(theta0)
+    if not np.all(np.isfinite(r0)):
+        raise IdentificationError('the simulation fails or is not finite at the initial '
+                                  'parameters')
+    before = problem.evaluations
+    if method == 'least_squares':
+        res = optimize.least_squares(problem.residuals, theta0, bounds=(lower, upper),
+                                     method='trf', x_scale=scales, max_nfev=max_nfev)
+        theta, jac = res.x, res.jac
+        success, reason = bool(res.status > 0), str(res.message)
+    else:
+        def natural(x: np.ndarray) -> np.ndarray:
+            # Clip away the rounding of (bound / scale) * scale.
+            return np.clip(x * scales, lower, upper)
+
+        def cost(x: np.ndarray) -> float:
+            r = problem.residuals(natural(x))
+            return float(r @ r)
+
+        ps = pattern_search(cost, theta0 / scales, lower / scales, upper / scales, options)
+        theta, jac = natural(ps.x), None
+        success, reason = ps.success, ps.message
+    # Every residual evaluation of the optimiser, finite-difference Jacobians included.
+    opt_evals = problem.evaluations - before
+    r = problem.residuals(theta)
+    cost_final = float(r @ r)
+    k = theta.size
+    se = np.full(k, np.nan)
+    corr = np.full((k, k), np.nan)
+    if uncertainty:
+        if jac is None:
+            jac = _central_jacobian(problem.residuals, theta, 1e-6 * scales, lower, upper)
+        dof = max(r.size - k, 1)
+        cov = (cost_final / dof) * linalg.pinvh(jac.T @ jac)
+        se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        with np.errstate(divide='ignore', invalid='ignore'):
+            corr = cov / np.outer(se, se)
+    values = problem.params(theta)
+    errors = {s.name: 0.0 for s in parameters}
+    for spec, value in zip(free, se):
+        errors[spec.name] = float(value)
+    fits = _section_fits(problem, theta, max_lag)
+    return GreyboxResult(values, errors, corr, tuple(s.name for s in free), cost_final,
+                         problem.evaluations, opt_evals, time.perf_counter() - start, method,
+                         success, reason, fits)
+
+
+def _check_specs(parameters: Sequence[ParameterSpec]) -> None:
+    names = [p.name for p in parameters]
+    if len(set(names)) != len(names):
+        raise IdentificationError(f'parameter names must be unique, got {names}')
+    if not any(p.free for p in parameters):
+        raise IdentificationError('at least one parameter must be free')
+    for p in parameters:
+        if not math.isfinite(p.initial):
+            raise IdentificationError(f'parameter {p.name!r}: initial must be finite')
+        if p.free and not p.lower <= p.initial <= p.upper:
+            raise IdentificationError(f'parameter {p.name!r}: initial {p.initial!r} outside '
+                                      f'[{p.lower!r}, {p.upper!r}]')
+        if p.scale is not None and not (math.isfinite(p.scale) and p.scale > 0.0):
+            raise IdentificationError(f'parameter {p.name!r}: scale must be finite and > 0')
+
+
+def _check_sections(sections: Sequence[DataSection]) -> None:
+    if not sections:
+        raise IdentificationError('need at least one data section')
+    for sec in sections:
+        u, y = np.asarray(sec.inputs), np.asarray(sec.outputs)
+        if y.ndim not in (1, 2) or y.shape[0] < 2 or u.shape[0] != y.shape[0]:
+            raise IdentificationError(f'section {sec.name!r}: inputs and outputs need the same '
+                                      f'number of samples (>= 2), got {u.shape} and {y.shape}')
+        if not (np.isfinite(u).all() and np.isfinite(y).all()):
+            raise IdentificationError(f'section {sec.name!r} holds NaN or infinite samples')
+        if not sec.weight > 0.0:
+            raise IdentificationError(f'section {sec.name!r}: weight must be > 0')
+
+
+def _central_jacobian(fun: Callable[[np.ndarray], np.ndarray], x: np.ndarray,
+                      steps: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """Central differences (one-sided at a bound)."""
+    columns = []
+    for i, h in enumerate(steps):
+        up, down = x.copy(), x.copy()
+        up[i] = min(x[i] + h, upper[i])
+        down[i] = max(x[i] - h, lower[i])
+        columns.append((fun(up) - fun(down)) / (up[i] - down[i]))
+    return np.column_stack(columns)
+
+
+def _section_fits(problem: _Problem, theta: np.ndarray, max_lag: int) -> Tuple[SectionFit, ...]:
+    outs = problem.outputs(theta)
+    fits = []
+    for yh, (sec, y, _) in zip(outs, problem.sections):
+        y2, yh2 = y.reshape(y.shape[0], -1), yh.reshape(y.shape[0], -1)
+        u2 = np.asarray(sec.inputs, dtype=float).reshape(y.shape[0], -1)
+        err = y2 - yh2
+        white, cross = [], []
+        for c in range(err.shape[1]):
+            if y.shape[0] >= max_lag + 2 and np.any(err[:, c] != err[0, c]):
+                white.append(whiteness_test(err[:, c], max_lag).fraction_inside)
+                for j in range(u2.shape[1]):
+                    if np.ptp(u2[:, j]) > 0.0:
+                        cross.append(input_correlation_test(err[:, c], u2[:, j],
+                                                            max_lag).fraction_inside)
+        fits.append(SectionFit(sec.name, np.atleast_1d(fit_percent(y2, yh2)),
+                               float(np.mean(white)) if white else float('nan'),
+                               float(np.mean(cross)) if cross else float('nan'),
+                               np.sqrt(np.mean(err ** 2, axis=0))))
+    return tuple(fits)
+
+
+def specs_from_mapping(values: Mapping[str, float], free: Sequence[str] = (),
+                       relative_bounds: Tuple[float, float] = (0.1, 10.0)
+                       ) -> Tuple[ParameterSpec, ...]:
+    """
+    Build parameter specs from a dict of values (helper for physical models).
+
+    Parameters
+    ----------
+    values : mapping of str to float
+        All parameter values (start values of the free ones).
+    free : sequence of str
+        Names to estimate; the others are fixed.
+    relative_bounds : (float, float)
+        Bounds of a free positive parameter as multiples of its start value.
+
+    Returns
+    -------
+    tuple of ParameterSpec
+        One spec per entry of ``values``.
+
+    Raises
+    ------
+    IdentificationError
+        If a free name is not in ``values``.
+    """
+    missing = [name for name in free if name not in values]
+    if missing:
+        raise IdentificationError(f'free parameters {missing} are not in the values')
+    specs = []
+    for name, value in values.items():
+        v = float(value)
+        if name in free:
+            lo, hi = sorted((relative_bounds[0] * v, relative_bounds[1] * v))
+            specs.append(ParameterSpec(name, v, lo, hi, True))
+        else:
+            specs.append(ParameterSpec(name, v, free=False))
+    return tuple(specs)
