@@ -17,13 +17,17 @@ PACKAGE = 'emfc_ros'
 # Node executables for `ros2 run emfc_ros <name>`: wrapper scripts in lib_wrappers/.
 NODES = {
     'signal_generator': 'emfc_ros.nodes.signal_generator:main',
+    'plant_simulator': 'emfc_ros.nodes.plant_simulator:main',
 }
 
 # Offline commands for PATH users.
 COMMANDS = {
     'emfc-signal-generator': 'emfc_ros.nodes.signal_generator:main',
+    'emfc-plant-simulator': 'emfc_ros.nodes.plant_simulator:main',
     'emfc-generate': 'emfc_ros.cli.generate:main',
     'emfc-demo': 'emfc_ros.cli.demo:main',
+    'emfc-model-summary': 'emfc_ros.cli.model_summary:main',
+    'emfc-simulate': 'emfc_ros.cli.simulate:main',
 }
 
 # On a full ROS install (ROS_DISTRO set by its setup script) rclpy and the message

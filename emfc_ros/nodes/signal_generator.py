@@ -63,6 +63,8 @@ PARAMETERS = {
     'tick_period_s': (0.0, 'period of the publishing timer [s], 1e-4 to 1; 0: automatic '
                            '(half the lead time, 1 ms to 20 ms)'),
     'max_blocks_per_tick': (64, 'most blocks published per timer tick [blocks], 1 to 10000'),
+    'min_subscribers': (0, 'after start, hold sample 0 until this many subscriptions match '
+                           'the excitation publisher [count], 0 to 100'),
 }
 
 
@@ -109,6 +111,7 @@ class SignalGeneratorNode(Node):
         self._timer = None
         self._block_size = 0
         self._max_blocks_per_tick = 0
+        self._min_subscribers = 0
         self.create_timer(1.0, self._publish_diagnostics)
         self._publish_done(False)
         ok, reason = self._arm()
@@ -145,7 +148,8 @@ class SignalGeneratorNode(Node):
 
     def _on_set_parameters(self, params: List[Parameter]) -> SetParametersResult:
         limits = {'block_size': (1, 1_000_000), 'lead_blocks': (0, 1000),
-                  'window_blocks': (1, 1000), 'max_blocks_per_tick': (1, 10000)}
+                  'window_blocks': (1, 1000), 'max_blocks_per_tick': (1, 10000),
+                  'min_subscribers': (0, 100)}
         touches_experiment = False
         for p in params:
             if p.name in limits:
@@ -211,6 +215,7 @@ class SignalGeneratorNode(Node):
         # Read once per run: the hot path touches no parameter.
         block = self._block_size = int(self._param('block_size'))
         self._max_blocks_per_tick = int(self._param('max_blocks_per_tick'))
+        self._min_subscribers = int(self._param('min_subscribers'))
         rate = self._experiment.sample_rate_Hz
         self._started_at = time.monotonic()
         lead_blocks = int(self._param('lead_blocks'))
@@ -279,6 +284,13 @@ class SignalGeneratorNode(Node):
         experiment = self._experiment
         total = experiment.total_samples
         block = self._block_size
+        if self._next_index == 0 and \
+                self._pub_blocks.get_subscription_count() < self._min_subscribers:
+            # Not started yet: the clock of sample 0 starts when the consumers are there.
+            self._started_at = time.monotonic()
+            if self._clock_pacer is not None:
+                self._clock_pacer.start_time_s = self._started_at
+            return
         if self._clock_pacer is not None:
             allowed = self._clock_pacer.allowed_index(time.monotonic())
         else:

@@ -1,0 +1,482 @@
+"""
+The plant_simulator node: the simulated balance, a drop-in for "bridge plus real balance".
+
+Topics (relative to the node namespace):
+
+- ``excitation`` (``std_msgs/Float64MultiArray``, in): setpoint-voltage blocks [V] (coil,
+  load changer) in the block convention; ``excitation/consumed`` (``std_msgs/UInt64``, out):
+  samples consumed so far, for a consumer-paced signal generator.
+- ``measurements`` (out): every simulated channel in one block stream, on the excitation's
+  sample clock when owning time; ``measurements/position``, ``measurements/current`` and
+  ``measurements/force`` (out): the same samples grouped as named streams. Each has a
+  latched ``<topic>/description``.
+- ``joint_states`` (``sensor_msgs/JointState``, out): joint ``lever``: position [m],
+  velocity [m/s], effort = coil force [N], at ``state_rate_Hz``.
+- ``joint_commands`` (``sensor_msgs/JointState``, in; ros2_control topic-based hardware) and
+  ``commands`` (``std_msgs/Float64MultiArray``, in; forward_command_controller): an effort
+  command, the coil force [N] added to the excitation; held until the next command, zeroed
+  by a watchdog after ``command_timeout_s``. It takes effect from the next block on.
+- ``/clock`` (``rosgraph_msgs/Clock``, out) when ``time_mode`` is ``owner``.
+- ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``, out, 1 Hz).
+
+Time modes: ``owner`` (the simulator owns time: each excitation block is simulated as soon
+as it arrives, measurement blocks carry the excitation's sample indices, ``/clock`` advances
+by the simulated time: lockstep with the input, faster than real time) and ``wall`` (paced
+to the wall clock: the simulator runs continuously on its own sample clock, consuming queued
+excitation and the safe value 0 V when there is none, which is counted as an underrun).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+import time
+from typing import List, Optional
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+import numpy as np
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray, String, UInt64
+from std_srvs.srv import Trigger
+
+from emfc_ros.core.blocks import Channel, StreamDescription
+from emfc_ros.core.config import unflatten
+from emfc_ros.core.errors import BlockError
+from emfc_ros.core.excitation_queue import ExcitationQueue
+from emfc_ros.core.model.parameters import BalanceParameters
+from emfc_ros.core.paths import config_file
+from emfc_ros.core.sim.channels import channel_names, channel_units, MEASURED, REFERENCE
+from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V, saturation_counts
+from emfc_ros.core.sim.simulator import Simulator
+from emfc_ros.nodes.convert import (
+    BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, diagnostic_status,
+    LATCHED_QOS, msg_to_block)
+
+DEFAULT_BALANCE = 'balance_default.yaml'
+TIME_MODES = ('owner', 'wall')
+GROUPS = {
+    'position': ('position_m', 'sensor_V', 'position_true_m'),
+    'current': ('coil_current_A', 'load_changer_current_A'),
+    'force': ('coil_force_N', 'load_changer_force_N', 'pan_force_N', 'coil_force_true_N'),
+}
+JOINT = 'lever'
+STATE_QOS = QoSProfile(depth=1000)
+
+PARAMETERS = {
+    'balance_file': ('', 'balance parameter YAML; empty: the balance.* parameters, or the '
+                         'shipped config/balance_default.yaml if there are none'),
+    'sample_rate_Hz': (10000.0, 'sample clock of the simulation [Hz]; excitation blocks must '
+                                'carry the same rate'),
+    'block_size': (1000, 'wall mode: samples simulated per step [samples], 1 to 1000000'),
+    'time_mode': ('owner', "'owner': lockstep with the excitation, publishes /clock; 'wall': "
+                           'paced to the wall clock'),
+    'seed': (0, 'seed of the sensor and amplifier noise'),
+    'noise': (True, 'simulate sensor and amplifier current noise'),
+    'quantisation': (True, 'simulate 16-bit DAC and ADC quantisation and saturation'),
+    'substeps': (0, 'RK4 steps per sample, 1 to 64; 0: the fewest that resolve the fastest '
+                    'mode'),
+    'hold': ('zoh', "setpoint hold between samples: 'zoh' or 'foh'"),
+    'load_mass_kg': (0.0, 'mass on the pan [kg], 0 to 2; settable at run time'),
+    'load_changer_coupled': (False, 'load changer moving mass coupled to the pan; settable at '
+                                    'run time'),
+    'state_rate_Hz': (1000.0, 'rate of joint_states [Hz], 0 disables, at most sample_rate_Hz'),
+    'command_timeout_s': (0.1, 'effort command watchdog [s]; the command returns to 0 N after '
+                               'this long without a new one'),
+    'publish_groups': (True, 'also publish measurements/position, current and force'),
+}
+
+
+class PlantSimulatorNode(Node):
+    """
+    Simulate the balance between excitation blocks in and measurement blocks out.
+
+    Parameters
+    ----------
+    **kwargs
+        Passed to :class:`rclpy.node.Node`.
+    """
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('plant_simulator', allow_undeclared_parameters=True,
+                         automatically_declare_parameters_from_overrides=True, **kwargs)
+        for name, (default, text) in PARAMETERS.items():
+            if not self.has_parameter(name):
+                self.declare_parameter(name, default, ParameterDescriptor(description=text))
+        self._error = ''
+        self._rate = float(self._param('sample_rate_Hz'))
+        self._mode = str(self._param('time_mode'))
+        self._names = channel_names(reference=True)
+        self._units = channel_units(reference=True)
+        try:
+            self._sim = self._make_simulator()
+        except (ValueError, OSError) as exc:
+            # Keep running: report the reason, accept a corrected balance_file or balance.*.
+            self._sim = None
+            self._error = f'balance configuration refused: {exc}'
+            self.get_logger().error(self._error)
+        else:
+            # Compile (or load) the numba kernel now, on a throwaway copy and before any
+            # topic exists, so that the first excitation block is not kept waiting.
+            self._make_simulator().step_block(np.zeros((2, 1)))
+        self._queue = ExcitationQueue([0.0, 0.0])
+        self._epoch = 0
+        self._wall_index = 0
+        self._sim_samples = 0
+        self._blocks_in = 0
+        self._blocks_out = 0
+        self._malformed = 0
+        self._last_error = ''
+        self._command_N = 0.0
+        self._command_time = -math.inf
+        self._command_watchdog_trips = 0
+        self._builders = {}
+        self._row = {name: i for i, name in enumerate(self._names)}
+        self._saturation = {}
+        self._last_position_m = 0.0
+
+        self._pub = {'measurements': self.create_publisher(Float64MultiArray, 'measurements',
+                                                           BLOCK_QOS)}
+        self._pub_desc = {'measurements': self.create_publisher(
+            String, 'measurements/description', LATCHED_QOS)}
+        if self._param('publish_groups'):
+            for group in GROUPS:
+                topic = f'measurements/{group}'
+                self._pub[topic] = self.create_publisher(Float64MultiArray, topic, BLOCK_QOS)
+                self._pub_desc[topic] = self.create_publisher(String, f'{topic}/description',
+                                                              LATCHED_QOS)
+        self._pub_ack = self.create_publisher(UInt64, 'excitation/consumed', CONTROL_QOS)
+        # Deep enough for a block's burst of states (a block of 1000 samples at 10 kHz
+        # with states at 1 kHz is 100 messages).
+        self._pub_state = self.create_publisher(JointState, 'joint_states', STATE_QOS)
+        self._pub_clock = self.create_publisher(Clock, '/clock', 10) \
+            if self._mode == 'owner' else None
+        self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.create_subscription(Float64MultiArray, 'excitation', self._on_excitation,
+                                 BLOCK_QOS)
+        self.create_subscription(JointState, 'joint_commands', self._on_joint_command,
+                                 CONTROL_QOS)
+        self.create_subscription(Float64MultiArray, 'commands', self._on_array_command,
+                                 CONTROL_QOS)
+        self.create_service(Trigger, 'reset', self._srv_reset)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._publish_descriptions()
+        self.create_timer(1.0, self._publish_diagnostics)
+        self._wall_start = time.monotonic()
+        if self._mode == 'wall':
+            block = int(self._param('block_size'))
+            self.create_timer(min(0.02, max(0.001, 0.5 * block / self._rate)), self._wall_tick)
+
+    # -- configuration ---------------------------------------------------------------------
+
+    def _param(self, name: str):
+        return self.get_parameter(name).value
+
+    def _balance(self, overrides: Optional[List[Parameter]] = None) -> BalanceParameters:
+        path = self._param('balance_file')
+        flat = {name: p.value for name, p in self.get_parameters_by_prefix('balance').items()}
+        for p in overrides or []:
+            if p.name == 'balance_file':
+                path = p.value
+            elif p.name.startswith('balance.'):
+                flat[p.name[len('balance.'):]] = p.value
+        if path:
+            return BalanceParameters.load_yaml(Path(path))
+        if not flat:
+            return BalanceParameters.load_yaml(config_file(DEFAULT_BALANCE))
+        flat = {k: (list(v) if not isinstance(v, (str, bytes, bool, int, float)) else v)
+                for k, v in flat.items()}
+        return BalanceParameters.from_mapping(unflatten(flat)['balance']
+                                              if 'balance' in unflatten(flat)
+                                              else unflatten(flat))
+
+    def _make_simulator(self, overrides: Optional[List[Parameter]] = None) -> Simulator:
+        substeps = int(self._param('substeps'))
+        return Simulator(self._balance(overrides), self._rate, seed=int(self._param('seed')),
+                         noise=bool(self._param('noise')),
+                         quantisation=bool(self._param('quantisation')),
+                         substeps=substeps or None, hold=str(self._param('hold')),
+                         load_mass_kg=float(self._param('load_mass_kg')),
+                         load_changer_coupled=bool(self._param('load_changer_coupled')))
+
+    def _on_set_parameters(self, params: List[Parameter]) -> SetParametersResult:
+        fixed = ('sample_rate_Hz', 'block_size', 'time_mode', 'seed', 'noise',
+                 'quantisation', 'substeps', 'hold', 'publish_groups')
+        load = None
+        coupled = None
+        if any(p.name == 'balance_file' or p.name.startswith('balance.') for p in params):
+            try:
+                candidate = self._make_simulator(params)
+            except (ValueError, OSError) as exc:
+                return SetParametersResult(successful=False,
+                                           reason=f'balance configuration refused: {exc}')
+            self._sim = candidate
+            self._error = ''
+            self.get_logger().info('new balance parameters: simulator restarted at its '
+                                   'operating point')
+        for p in params:
+            if p.name in fixed:
+                return SetParametersResult(
+                    successful=False, reason=f'{p.name} is fixed at start-up; restart the node '
+                                             'with the new value')
+            if p.name == 'load_mass_kg':
+                if p.type_ not in (Parameter.Type.DOUBLE, Parameter.Type.INTEGER) or \
+                        not 0.0 <= float(p.value) <= 2.0:
+                    return SetParametersResult(
+                        successful=False,
+                        reason=f'load_mass_kg must be a number from 0 to 2 kg, got {p.value!r}')
+                load = float(p.value)
+            elif p.name == 'load_changer_coupled':
+                if p.type_ != Parameter.Type.BOOL:
+                    return SetParametersResult(
+                        successful=False, reason='load_changer_coupled must be true or false')
+                coupled = bool(p.value)
+            elif p.name == 'state_rate_Hz':
+                if p.type_ not in (Parameter.Type.DOUBLE, Parameter.Type.INTEGER) or \
+                        not 0.0 <= float(p.value) <= self._rate:
+                    return SetParametersResult(
+                        successful=False, reason=f'state_rate_Hz must be from 0 to '
+                                                 f'{self._rate} Hz, got {p.value!r}')
+            elif p.name == 'command_timeout_s':
+                if p.type_ not in (Parameter.Type.DOUBLE, Parameter.Type.INTEGER) or \
+                        not 0.0 < float(p.value) <= 60.0:
+                    return SetParametersResult(
+                        successful=False, reason='command_timeout_s must be in (0, 60] s, got '
+                                                 f'{p.value!r}')
+        if (load is not None or coupled is not None) and self._sim is not None:
+            self._sim.set_load(
+                load if load is not None else float(self._param('load_mass_kg')),
+                coupled if coupled is not None else bool(self._param('load_changer_coupled')))
+        return SetParametersResult(successful=True)
+
+    # -- streams ---------------------------------------------------------------------------
+
+    def _descriptions(self) -> dict:
+        meanings = {name: text for name, _unit, text in MEASURED + REFERENCE}
+        out = {}
+        channels = tuple(Channel(n, u, meanings.get(n, ''))
+                         for n, u in zip(self._names, self._units))
+        extra = {'time_mode': self._mode, 'load_mass_kg': float(self._param('load_mass_kg')),
+                 'load_changer_coupled': bool(self._param('load_changer_coupled'))}
+        out['measurements'] = StreamDescription(
+            'measurements', self._rate, 0, channels, epoch=self._epoch,
+            source=self.get_fully_qualified_name(), extra=extra)
+        for topic in self._pub:
+            if topic == 'measurements':
+                continue
+            group = topic.split('/', 1)[1]
+            out[topic] = StreamDescription(
+                group, self._rate, 0, tuple(c for c in channels if c.name in GROUPS[group]),
+                epoch=self._epoch, source=self.get_fully_qualified_name(), extra=extra)
+        return out
+
+    def _publish_descriptions(self) -> None:
+        for topic, description in self._descriptions().items():
+            self._pub_desc[topic].publish(description_to_msg(description))
+
+    def _publish_block(self, first_index: int, out: np.ndarray) -> None:
+        for topic, pub in self._pub.items():
+            if topic == 'measurements':
+                rows = out
+            else:
+                group = GROUPS[topic.split('/', 1)[1]]
+                rows = out[[self._row[n] for n in group if n in self._row]]
+            builder = self._builders.setdefault(topic, BlockMessageBuilder())
+            pub.publish(builder.build(first_index, self._rate, self._epoch, rows))
+        self._blocks_out += 1
+
+    def _simulate(self, first_index: int, setpoints: np.ndarray, stamp_ns: int) -> None:
+        """Apply the effort command, simulate, publish the block, the state and the clock."""
+        command = self._command_setpoint_V()
+        if command:
+            setpoints = setpoints.copy()
+            setpoints[0] += command
+        out = self._sim.step_block(setpoints)
+        for key, count in saturation_counts(out, self._names, self._sim.params).items():
+            self._saturation[key] = self._saturation.get(key, 0) + count
+        self._last_position_m = float(out[self._row['position_m'], -1])
+        self._publish_block(first_index, out)
+        self._publish_states(out, stamp_ns)
+        self._sim_samples += setpoints.shape[1]
+        if self._pub_clock is not None:
+            self._pub_clock.publish(Clock(clock=_time_msg(self._sim_time_ns())))
+
+    def _sim_time_ns(self) -> int:
+        return int(round(self._sim_samples * 1e9 / self._rate))
+
+    def _on_excitation(self, msg: Float64MultiArray) -> None:
+        if self._sim is None:
+            self._malformed += 1
+            self._last_error = self._error
+            return
+        try:
+            block = msg_to_block(msg, expected_channels=2)
+            if abs(block.sample_rate_Hz - self._rate) > 1e-9 * self._rate:
+                raise BlockError(f'excitation at {block.sample_rate_Hz} Hz, simulator runs at '
+                                 f'{self._rate} Hz')
+            self._queue.push(block)
+        except BlockError as exc:
+            self._malformed += 1
+            self._last_error = str(exc)
+            self.get_logger().warning(f'excitation block dropped: {exc}',
+                                      throttle_duration_sec=5.0)
+            return
+        self._blocks_in += 1
+        if self._epoch != block.epoch and self._mode == 'owner':
+            self._epoch = block.epoch
+            self._publish_descriptions()
+        if self._mode == 'owner' and self._queue.queued:
+            first = self._queue.head_index
+            setpoints, _ = self._queue.pop(self._queue.queued)
+            self._simulate(first, setpoints, self._sim_time_ns())
+            self._pub_ack.publish(UInt64(data=self._queue.head_index))
+
+    def _wall_tick(self) -> None:
+        if self._sim is None:
+            return
+        block = int(self._param('block_size'))
+        due = int((time.monotonic() - self._wall_start) * self._rate) // block * block
+        budget = 64
+        while self._wall_index + block <= due and budget > 0:
+            had = self._queue.queued
+            setpoints, _ = self._queue.pop(block)
+            stamp = self.get_clock().now().nanoseconds
+            self._simulate(self._wall_index, setpoints, stamp)
+            self._wall_index += block
+            budget -= 1
+            if had:
+                self._pub_ack.publish(UInt64(data=self._queue.head_index))
+
+    # -- controller interface --------------------------------------------------------------
+
+    def _on_joint_command(self, msg: JointState) -> None:
+        if JOINT in msg.name and len(msg.effort) == len(msg.name):
+            self._set_command(float(msg.effort[msg.name.index(JOINT)]))
+        else:
+            self._malformed += 1
+            self._last_error = f'joint_commands needs an effort for joint {JOINT!r}'
+
+    def _on_array_command(self, msg: Float64MultiArray) -> None:
+        if len(msg.data) == 1:
+            self._set_command(float(msg.data[0]))
+        else:
+            self._malformed += 1
+            self._last_error = f'commands needs exactly 1 value (effort [N]), got {len(msg.data)}'
+
+    def _set_command(self, effort_N: float) -> None:
+        if not math.isfinite(effort_N):
+            self._malformed += 1
+            self._last_error = f'effort command {effort_N!r} is not finite'
+            return
+        self._command_N = effort_N
+        self._command_time = time.monotonic()
+
+    def _command_setpoint_V(self) -> float:
+        """Coil setpoint [V] that produces the commanded force at the current position."""
+        if self._command_N == 0.0:
+            return 0.0
+        if time.monotonic() - self._command_time > float(self._param('command_timeout_s')):
+            self._command_N = 0.0
+            self._command_watchdog_trips += 1
+            return 0.0
+        position_m = float(self._last_position_m)
+        return coil_setpoint_for_force_V(self._sim.params, self._command_N, position_m)
+
+    def _publish_states(self, out: np.ndarray, first_stamp_ns: int) -> None:
+        rate = float(self._param('state_rate_Hz'))
+        if rate <= 0.0:
+            return
+        step = max(1, int(round(self._rate / rate)))
+        n = out.shape[1]
+        position = out[self._row['position_m']]
+        truth = out[self._row['position_true_m']] if 'position_true_m' in self._row \
+            else position
+        velocity = np.gradient(truth) * self._rate if n > 1 else np.zeros(n)
+        effort = out[self._row['coil_force_N']]
+        for i in range(0, n, step):
+            msg = JointState()
+            msg.header.stamp = _time_msg(first_stamp_ns + int(round(i * 1e9 / self._rate)))
+            msg.name = [JOINT]
+            msg.position = [float(position[i])]
+            msg.velocity = [float(velocity[i])]
+            msg.effort = [float(effort[i])]
+            self._pub_state.publish(msg)
+
+    # -- services and diagnostics ----------------------------------------------------------
+
+    def _srv_reset(self, request: Trigger.Request, response: Trigger.Response):
+        if self._sim is None:
+            response.success, response.message = False, self._error
+            return response
+        self._sim.reset()
+        response.success = True
+        response.message = 'simulator state reset to the operating point'
+        return response
+
+    def _publish_diagnostics(self) -> None:
+        values = dict(self._queue.counters())
+        values.update({'time_mode': self._mode, 'sample_rate_Hz': self._rate,
+                       'simulated_samples': self._sim_samples,
+                       'simulated_time_s': f'{self._sim_samples / self._rate:.6f}',
+                       'wall_time_s': f'{time.monotonic() - self._wall_start:.3f}',
+                       'blocks_in': self._blocks_in, 'blocks_out': self._blocks_out,
+                       'malformed_messages': self._malformed,
+                       'command_N': self._command_N,
+                       'command_watchdog_trips': self._command_watchdog_trips,
+                       'last_error': self._last_error, 'error': self._error})
+        values.update(self._saturation)
+        defects = self._malformed + values['gaps'] + values['duplicates'] + \
+            values['reordered'] + values['overlaps']
+        level = DiagnosticStatus.WARN if defects else DiagnosticStatus.OK
+        if self._sim is None:
+            level = DiagnosticStatus.ERROR
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [diagnostic_status(f'{self.get_name()}: simulation',
+                                        self.get_fully_qualified_name(), level,
+                                        self._error or ('excitation defects' if defects
+                                                        else 'ok'), values)]
+        self._pub_diag.publish(msg)
+
+
+def _time_msg(ns: int) -> Time:
+    return Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
+
+
+def main(args: Optional[List[str]] = None) -> int:
+    """
+    Run the plant_simulator node until shutdown.
+
+    Parameters
+    ----------
+    args : list of str, optional
+        Command-line arguments (``--ros-args ...``).
+
+    Returns
+    -------
+    int
+        Process exit code.
+    """
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = PlantSimulatorNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,204 @@
+"""
+The plant_simulator node over real DDS.
+
+Lockstep with the signal generator in simulated time, exact sample indices, the same
+samples as the simulator core, the controller interface, diagnostics, refused parameters.
+"""
+
+from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
+import pytest
+import rclpy
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray, String
+
+from emfc_ros.core.config import unflatten
+from emfc_ros.core.model.parameters import BalanceParameters
+from emfc_ros.core.paths import config_file
+from emfc_ros.core.signals import experiment_from_config
+from emfc_ros.core.sim.simulator import Simulator
+from emfc_ros.nodes.convert import (
+    BLOCK_QOS, block_to_msg, LATCHED_QOS, msg_to_block, msg_to_description)
+from emfc_ros.nodes.plant_simulator import PlantSimulatorNode
+from emfc_ros.nodes.signal_generator import SignalGeneratorNode
+import ros_harness
+
+TIMEOUT_S = 20.0
+RATE = 10000.0
+
+
+def hold_coil_V():
+    params = BalanceParameters.load_yaml(config_file('balance_default.yaml'))
+    return float(Simulator(params, RATE).hold_setpoints_V[0])
+
+
+def experiment(hold_V):
+    return {
+        'sample_rate_Hz': RATE, 'sections': ['a'],
+        'section.a.duration_s': 0.0833,
+        'section.a.coil.offset_V': hold_V,
+        'section.a.coil.signals.s.type': 'sine',
+        'section.a.coil.signals.s.amplitude_V': 0.002,
+        'section.a.coil.signals.s.frequency_Hz': 50.0,
+        'section.a.load_changer.signals.p.type': 'prbs',
+        'section.a.load_changer.signals.p.order': 7,
+        'section.a.load_changer.signals.p.low_V': -0.05,
+        'section.a.load_changer.signals.p.high_V': 0.05,
+    }
+
+
+class Probe:
+    """Records what the plant publishes."""
+
+    def __init__(self, context):
+        self.node = rclpy.create_node('probe', context=context)
+        self.blocks = {}
+        self.descriptions = {}
+        self.clock_ns = []
+        self.states = []
+        self.diagnostics = []
+        for topic in ('measurements', 'measurements/position', 'measurements/current',
+                      'measurements/force'):
+            self.blocks[topic] = []
+            self.node.create_subscription(
+                Float64MultiArray, topic,
+                lambda m, t=topic: self.blocks[t].append(
+                    (lambda b: (b.first_sample_index, b.epoch, np.array(b.samples)))(
+                        msg_to_block(m))), BLOCK_QOS)
+            self.node.create_subscription(
+                String, f'{topic}/description',
+                lambda m, t=topic: self.descriptions.__setitem__(t, msg_to_description(m)),
+                LATCHED_QOS)
+        self.node.create_subscription(
+            Clock, '/clock',
+            lambda m: self.clock_ns.append(m.clock.sec * 10 ** 9 + m.clock.nanosec), 10)
+        self.node.create_subscription(JointState, 'joint_states', self.states.append, 1000)
+        self.node.create_subscription(DiagnosticArray, '/diagnostics',
+                                      self.diagnostics.append, 10)
+
+    def samples(self, topic='measurements'):
+        return sum(b[2].shape[1] for b in self.blocks[topic])
+
+    def diag_value(self, key):
+        for msg in reversed(self.diagnostics):
+            for status in msg.status:
+                if status.name.startswith('plant_simulator'):
+                    values = {kv.key: kv.value for kv in status.values}
+                    if key in values:
+                        return values[key]
+        return None
+
+
+def test_lockstep_with_generator_is_exact_and_matches_the_core(executor, ros_context):
+    hold = hold_coil_V()
+    flat = experiment(hold)
+    gen = SignalGeneratorNode(context=ros_context, parameter_overrides=[
+        Parameter(f'experiment.{k}', value=v) for k, v in flat.items()] + [
+        Parameter('pacing', value='consumer'), Parameter('block_size', value=128),
+        Parameter('autostart', value=False)])
+    plant = PlantSimulatorNode(context=ros_context, parameter_overrides=[
+        Parameter('time_mode', value='owner'), Parameter('seed', value=7),
+        Parameter('state_rate_Hz', value=1000.0)])
+    probe = Probe(ros_context)
+    for node in (gen, plant, probe.node):
+        executor.add_node(node)
+    assert ros_harness.spin_until(
+        executor, lambda: gen.count_subscribers('excitation') >= 1
+        and plant.count_subscribers('measurements') >= 1
+        and gen.count_subscribers('excitation/consumed') >= 0
+        and plant.count_publishers('excitation/consumed') >= 1, TIMEOUT_S)
+    assert ros_harness.spin_until(
+        executor, lambda: gen.count_publishers('excitation/consumed') >= 1
+        or gen.get_subscriptions_info_by_topic('excitation/consumed'), TIMEOUT_S)
+    assert gen._start()[0]
+    total = 833
+    assert ros_harness.spin_until(executor, lambda: probe.samples() >= total, TIMEOUT_S)
+    # 7 blocks of up to 128 samples at 10 kHz, states every 10 samples: 13 per block.
+    assert ros_harness.spin_until(
+        executor, lambda: len(probe.clock_ns) >= 7 and len(probe.states) >= 85, TIMEOUT_S)
+
+    firsts = [b[0] for b in probe.blocks['measurements']]
+    assert firsts == list(range(0, total, 128))
+    got = np.concatenate([b[2] for b in probe.blocks['measurements']], axis=1)
+    assert got.shape[1] == total
+
+    # The same excitation through the core simulator in one shot gives the same samples.
+    excitation = experiment_from_config(unflatten(flat)).block(0, total)
+    params = BalanceParameters.load_yaml(config_file('balance_default.yaml'))
+    sim = Simulator(params, RATE, seed=7)
+    np.testing.assert_array_equal(got, sim.step_block(excitation))
+
+    names = probe.descriptions['measurements'].channel_names
+    applied = got[names.index('coil_setpoint_V')]
+    np.testing.assert_allclose(applied, excitation[0], atol=20.0 / 65536)
+    assert np.max(np.abs(got[names.index('position_true_m')])) < 100e-6
+    desc = probe.descriptions['measurements/force']
+    assert 'coil_force_N' in desc.channel_names and desc.channels[0].unit == 'N'
+    pos = np.concatenate([b[2] for b in probe.blocks['measurements/position']], axis=1)
+    np.testing.assert_array_equal(pos[0], got[names.index('position_m')])
+
+    # Simulated time: /clock ends at total / rate; joint states are stamped with it.
+    assert probe.clock_ns[-1] == round(total * 1e9 / RATE)
+    assert probe.clock_ns == sorted(probe.clock_ns)
+    stamps = [s.header.stamp.sec * 10 ** 9 + s.header.stamp.nanosec for s in probe.states]
+    assert len(stamps) == 85 and stamps == sorted(stamps)
+    assert stamps[-1] < total * 10 ** 5
+    assert probe.states[0].name == ['lever']
+
+
+def test_bad_excitation_is_counted_and_the_node_keeps_going(executor, ros_context):
+    plant = PlantSimulatorNode(context=ros_context, parameter_overrides=[
+        Parameter('time_mode', value='owner'), Parameter('noise', value=False)])
+    probe = Probe(ros_context)
+    feeder = rclpy.create_node('feeder', context=ros_context)
+    pub = feeder.create_publisher(Float64MultiArray, 'excitation', BLOCK_QOS)
+    for node in (plant, probe.node, feeder):
+        executor.add_node(node)
+    assert ros_harness.spin_until(executor, lambda: pub.get_subscription_count() >= 1
+                                  and plant.count_subscribers('measurements') >= 1, TIMEOUT_S)
+    bad = [block_to_msg(0, RATE, 1, np.zeros((3, 10))),        # three channels
+           block_to_msg(0, 5000.0, 1, np.zeros((2, 10)))]      # wrong sample rate
+    broken = block_to_msg(0, RATE, 1, np.zeros((2, 10)))
+    broken.layout.data_offset = 0                              # breaks the convention
+    for msg in bad + [broken]:
+        pub.publish(msg)
+    pub.publish(block_to_msg(0, RATE, 1, np.zeros((2, 100))))
+    assert ros_harness.spin_until(executor, lambda: probe.samples() >= 100, TIMEOUT_S)
+    assert ros_harness.spin_until(
+        executor, lambda: probe.diag_value('malformed_messages') == '3', TIMEOUT_S)
+    assert probe.blocks['measurements'][0][0] == 0
+
+
+@pytest.mark.slow
+def test_separate_process_refuses_bad_parameters(tmp_path, processes, executor, ros_context):
+    bad = tmp_path / 'balance.yaml'
+    text = config_file('balance_default.yaml').read_text()
+    assert 'mp_kg: 0.060' in text
+    bad.write_text(text.replace('mp_kg: 0.060', 'mp_kg: -1.0'))
+    proc = processes.start(ros_harness.node_executable('plant_simulator') + [
+        '--ros-args', '-r', '__ns:=/emfc', '-p', 'time_mode:=owner'])
+    probe = rclpy.create_node('client', namespace='/emfc', context=ros_context)
+    executor.add_node(probe)
+    client = AsyncParameterClient(probe, '/emfc/plant_simulator')
+    assert ros_harness.spin_until(executor, client.services_are_ready, TIMEOUT_S), proc.output()
+
+    def set_one(name, value):
+        future = client.set_parameters([Parameter(name, value=value)])
+        assert ros_harness.spin_until(executor, future.done, TIMEOUT_S)
+        return future.result().results[0]
+
+    for name, value, needle in [('load_mass_kg', -0.1, 'load_mass_kg'),
+                                ('load_mass_kg', 5.0, '0 to 2 kg'),
+                                ('seed', 3, 'fixed at start-up'),
+                                ('balance_file', str(bad), 'mp_kg'),
+                                ('balance_file', str(tmp_path / 'none.yaml'), 'none.yaml')]:
+        result = set_one(name, value)
+        assert not result.successful, name
+        assert needle in result.reason, result.reason
+    assert set_one('load_mass_kg', 0.1).successful
+    assert set_one('load_changer_coupled', True).successful
+    assert proc.alive()
+    assert proc.stop() == 0
