@@ -18,12 +18,16 @@ PACKAGE = 'emfc_ros'
 NODES = {
     'signal_generator': 'emfc_ros.nodes.signal_generator:main',
     'plant_simulator': 'emfc_ros.nodes.plant_simulator:main',
+    'recorder': 'emfc_ros.nodes.recorder:main',
 }
 
 # Offline commands for PATH users.
 COMMANDS = {
     'emfc-signal-generator': 'emfc_ros.nodes.signal_generator:main',
     'emfc-plant-simulator': 'emfc_ros.nodes.plant_simulator:main',
+    'emfc-recorder': 'emfc_ros.nodes.recorder:main',
+    'emfc-bag-repair': 'emfc_ros.cli.bag_repair:main',
+    'emfc-bag-info': 'emfc_ros.cli.bag_info:main',
     'emfc-generate': 'emfc_ros.cli.generate:main',
     'emfc-demo': 'emfc_ros.cli.demo:main',
     'emfc-model-summary': 'emfc_ros.cli.model_summary:main',
@@ -56,6 +60,7 @@ setup(
         'scipy>=1.10',
         'PyYAML>=6',
         'rosbags>=0.10',
+        'mcap>=1.6',
     ] + ROS_FROM_PYPI,
     extras_require={
         'fast': ['numba>=0.59'],

@@ -99,7 +99,7 @@ def measure(config: str, rate: float, block: int, seconds: float, hold_V: float)
         got['samples'] += b.n_samples
 
     node.create_subscription(Float64MultiArray, topic, on_block, BLOCK_QOS)
-    client = node.create_client(Trigger, 'start')
+    client = node.create_client(Trigger, 'signal_generator/start')
     total = int(round(rate * seconds))
     result = {'configuration': config, 'rate_S_per_s': rate, 'block_size': block,
               'seconds': seconds, 'expected_samples': total}

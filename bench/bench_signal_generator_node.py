@@ -79,7 +79,7 @@ def raw_publisher(rate: float, block: int, seconds: float) -> int:
         response.success = True
         return response
 
-    node.create_service(Trigger, 'start', on_start)
+    node.create_service(Trigger, '~/start', on_start)
     samples = np.random.default_rng(0).normal(size=(2, block))
     builder = BlockMessageBuilder()
     total = int(round(rate * seconds))
@@ -137,7 +137,7 @@ def measure(kind: str, rate: float, block: int, seconds: float) -> dict:
         got['samples'] += b.n_samples
 
     node.create_subscription(Float64MultiArray, 'excitation', on_block, BLOCK_QOS)
-    client = node.create_client(Trigger, 'start')
+    client = node.create_client(Trigger, 'signal_generator/start')
     total = int(round(rate * seconds))
     result = {'producer': kind, 'rate_S_per_s': rate, 'block_size': block,
               'seconds': seconds, 'expected_samples': total}

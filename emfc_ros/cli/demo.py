@@ -146,8 +146,8 @@ def run(out: Path, experiment_file: Optional[str], timeout_s: float) -> int:
         state['section'] = json.loads(msg.data).get('section', '')
 
     monitor.create_subscription(String, 'excitation/description', on_description, LATCHED_QOS)
-    monitor.create_subscription(String, 'status', on_status, LATCHED_QOS)
-    start_client = monitor.create_client(Trigger, 'start')
+    monitor.create_subscription(String, 'signal_generator/status', on_status, LATCHED_QOS)
+    start_client = monitor.create_client(Trigger, 'signal_generator/start')
     monitor.create_subscription(Float64MultiArray, 'excitation', on_block, BLOCK_QOS)
     executor = MultiThreadedExecutor(num_threads=2)
     executor.add_node(generator)

@@ -8,12 +8,12 @@ Topics (relative to the node namespace):
 - ``excitation/description`` (``std_msgs/String``, out, latched): the stream description.
 - ``excitation/consumed`` (``std_msgs/UInt64``, in): a consumer's acknowledgement, the
   number of samples it has consumed; drives ``pacing: consumer``.
-- ``status`` (``std_msgs/String``, out, latched): JSON with state, sample index, section.
-- ``done`` (``std_msgs/Bool``, out, latched): true once the experiment has been sent.
+- ``~/status`` (``std_msgs/String``, out, latched): JSON with state, sample index, section.
+- ``~/done`` (``std_msgs/Bool``, out, latched): true once the experiment has been sent.
 - ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``, out, 1 Hz).
 
-Services (``std_srvs/Trigger``): ``arm`` (load the experiment, rewind to sample 0 in a new
-epoch), ``start`` (arm if needed, then publish), ``stop`` (stop publishing).
+Services (``std_srvs/Trigger``, private): ``~/arm`` (load the experiment, rewind to sample 0
+in a new epoch), ``~/start`` (arm if needed, then publish), ``~/stop`` (stop publishing).
 """
 
 from __future__ import annotations
@@ -99,13 +99,14 @@ class SignalGeneratorNode(Node):
         self._pub_blocks = self.create_publisher(Float64MultiArray, 'excitation', BLOCK_QOS)
         self._pub_description = self.create_publisher(String, 'excitation/description',
                                                       LATCHED_QOS)
-        self._pub_status = self.create_publisher(String, 'status', LATCHED_QOS)
-        self._pub_done = self.create_publisher(Bool, 'done', LATCHED_QOS)
+        # Control and state are private (~/...) so that nodes sharing a namespace never clash.
+        self._pub_status = self.create_publisher(String, '~/status', LATCHED_QOS)
+        self._pub_done = self.create_publisher(Bool, '~/done', LATCHED_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_subscription(UInt64, 'excitation/consumed', self._on_consumed, CONTROL_QOS)
-        self.create_service(Trigger, 'arm', self._srv_arm)
-        self.create_service(Trigger, 'start', self._srv_start)
-        self.create_service(Trigger, 'stop', self._srv_stop)
+        self.create_service(Trigger, '~/arm', self._srv_arm)
+        self.create_service(Trigger, '~/start', self._srv_start)
+        self.create_service(Trigger, '~/stop', self._srv_stop)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self._timer = None

@@ -73,9 +73,11 @@ class Listener:
                                       BLOCK_QOS)
         self.node.create_subscription(String, 'excitation/description', self._on_desc,
                                       LATCHED_QOS)
-        self.node.create_subscription(String, 'status', self._on_status, LATCHED_QOS)
-        self.node.create_subscription(Bool, 'done', self._on_done, LATCHED_QOS)
-        self.clients = {name: self.node.create_client(Trigger, name)
+        self.node.create_subscription(String, 'signal_generator/status', self._on_status,
+                                      LATCHED_QOS)
+        self.node.create_subscription(Bool, 'signal_generator/done', self._on_done,
+                                      LATCHED_QOS)
+        self.clients = {name: self.node.create_client(Trigger, f'signal_generator/{name}')
                         for name in ('arm', 'start', 'stop')}
 
     def _on_block(self, msg):

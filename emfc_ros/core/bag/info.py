@@ -1,0 +1,83 @@
+"""
+A ``ros2 bag info``-like summary of a bag, without ROS.
+
+Reads ``metadata.yaml`` for files, duration and topics, and optionally the block streams
+(sample rate, channels, samples, gaps) with :func:`emfc_ros.core.bag.reader.read_streams`.
+"""
+
+from __future__ import annotations
+
+import datetime
+from pathlib import Path
+from typing import List
+
+from emfc_ros.core.bag.metadata import read_metadata
+from emfc_ros.core.bag.reader import read_streams
+
+
+def _time(ns: int) -> str:
+    stamp = datetime.datetime.fromtimestamp(ns * 1e-9, tz=datetime.timezone.utc)
+    return f'{stamp:%Y-%m-%d %H:%M:%S.%f} UTC ({ns / 1e9:.9f})'
+
+
+def bag_info(bag_path, streams: bool = False) -> str:
+    """
+    Describe a bag for people.
+
+    Parameters
+    ----------
+    bag_path : str or pathlib.Path
+        The bag folder.
+    streams : bool
+        Also read the block streams and describe them (reads every block).
+
+    Returns
+    -------
+    str
+        The summary text.
+
+    Raises
+    ------
+    emfc_ros.core.bag.errors.BagFormatError
+        If the bag cannot be read.
+    """
+    bag = Path(bag_path)
+    meta = read_metadata(bag)
+    files = meta.get('relative_file_paths') or []
+    size = sum((bag / f).stat().st_size for f in files if (bag / f).is_file())
+    start = int(meta['starting_time']['nanoseconds_since_epoch'])
+    duration = int(meta['duration']['nanoseconds'])
+    lines: List[str] = [
+        f'Files:             {", ".join(files)}',
+        f'Bag size:          {size / 2**20:.3f} MiB',
+        f'Storage id:        {meta.get("storage_identifier")}  (metadata version '
+        f'{meta.get("version")})',
+        f'Duration:          {duration / 1e9:.9f} s',
+        f'Start:             {_time(start)}',
+        f'End:               {_time(start + duration)}',
+        f'Messages:          {meta.get("message_count")}',
+        'Topic information:']
+    for entry in meta.get('topics_with_message_count') or []:
+        t = entry['topic_metadata']
+        lines.append(f'  Topic: {t["name"]} | Type: {t["type"]} | Count: '
+                     f'{entry["message_count"]} | Serialization Format: '
+                     f'{t["serialization_format"]}')
+    custom = meta.get('custom_data') or {}
+    if custom:
+        lines.append('Custom data:')
+        for key in sorted(custom):
+            first = str(custom[key]).splitlines()[0] if str(custom[key]) else ''
+            more = f' ... ({len(str(custom[key]))} characters)' if '\n' in str(
+                custom[key]) else ''
+            lines.append(f'  {key}: {first}{more}')
+    if streams:
+        lines.append('Block streams:')
+        for key, s in read_streams(bag, on_gap='nan').items():
+            channels = ', '.join(f'{n} [{u}]' for n, u in zip(s.channel_names,
+                                                              s.channel_units))
+            lines.append(f'  {key}: {s.sample_rate_Hz:g} Hz, epoch {s.epoch}, samples '
+                         f'{s.first_sample_index} to {s.first_sample_index + s.n_samples - 1}'
+                         f' ({s.n_samples / s.sample_rate_Hz:.6f} s), {len(s.gaps)} gaps '
+                         f'({s.missing_samples} samples missing), {s.duplicates} duplicate '
+                         f'blocks; channels: {channels}')
+    return '\n'.join(lines)

@@ -1,0 +1,323 @@
+"""
+Repair a bag whose recorder died: recover every complete MCAP record, rebuild metadata.yaml.
+
+A recorder killed while writing leaves its last MCAP file without summary and footer (and
+possibly a partly written chunk). :func:`repair_bag` reads each damaged file sequentially
+with the ``mcap`` stream reader (chunk CRCs checked) until the truncation, rewrites the
+complete records as a valid MCAP file with summary, keeps the original as
+``<file>.damaged`` (unless asked not to), and rebuilds ``metadata.yaml`` from all storage
+files, keeping the ``custom_data`` of the provisional metadata the recorder wrote.
+Intact files are only read (summary), never rewritten; repairing a good bag changes nothing
+but the metadata's layout.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+import re
+from typing import Dict, List, Optional, Tuple
+
+from mcap.reader import make_reader
+from mcap.records import Channel, Footer, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer as McapWriter
+import yaml
+
+from emfc_ros.core.bag.errors import BagFormatError
+from emfc_ros.core.bag.metadata import (
+    build_metadata, FileStats, METADATA_FILE, read_metadata, TopicStats, write_metadata)
+from emfc_ros.core.bag.writer import LIBRARY, PROFILE
+
+MAGIC = b'\x89MCAP0\r\n'
+_SPLIT_INDEX = re.compile(r'_(\d+)\.mcap$')
+
+
+@dataclasses.dataclass
+class FileReport:
+    """
+    What repair found in one storage file.
+
+    Attributes
+    ----------
+    path : str
+        File name in the bag folder.
+    status : str
+        ``'ok'`` (intact) or ``'recovered'`` (rewritten from its complete records).
+    message_count : int
+        Messages in the (repaired) file.
+    lost_bytes : int
+        Bytes after the last complete record that could not be recovered [B].
+    error : str
+        Why the original could not be read to its end.
+    """
+
+    path: str
+    status: str
+    message_count: int
+    lost_bytes: int = 0
+    error: str = ''
+
+
+@dataclasses.dataclass
+class RepairReport:
+    """
+    The result of :func:`repair_bag`.
+
+    Attributes
+    ----------
+    bag : pathlib.Path
+        The bag folder.
+    files : list of FileReport
+        One per storage file.
+    metadata : dict
+        The rebuilt ``rosbag2_bagfile_information``.
+    """
+
+    bag: Path
+    files: List[FileReport]
+    metadata: dict
+
+    @property
+    def repaired(self) -> bool:
+        """
+        Whether any file had to be rewritten.
+
+        Returns
+        -------
+        bool
+            True if a file was recovered.
+        """
+        return any(f.status == 'recovered' for f in self.files)
+
+    @property
+    def message_count(self) -> int:
+        """
+        Messages in the repaired bag.
+
+        Returns
+        -------
+        int
+            The sum over files.
+        """
+        return sum(f.message_count for f in self.files)
+
+    def summary(self) -> str:
+        """
+        A few lines for people.
+
+        Returns
+        -------
+        str
+            One line per file and a total.
+        """
+        lines = [f'{self.bag}:']
+        for f in self.files:
+            extra = f' (lost {f.lost_bytes} B after the last complete record: {f.error})' \
+                if f.status == 'recovered' else ''
+            lines.append(f'  {f.path}: {f.status}, {f.message_count} messages{extra}')
+        lines.append(f'  total {self.message_count} messages; metadata.yaml rebuilt')
+        return '\n'.join(lines)
+
+
+class _TopicTable:
+    """Topics across files, keyed by (topic, type)."""
+
+    def __init__(self) -> None:
+        self.topics: Dict[Tuple[str, str], TopicStats] = {}
+
+    def add(self, channel: Channel, schema: Optional[Schema], count: int) -> None:
+        msgtype = schema.name if schema is not None else ''
+        key = (channel.topic, msgtype)
+        stats = self.topics.get(key)
+        if stats is None:
+            qos_text = channel.metadata.get('offered_qos_profiles', '')
+            try:
+                qos = yaml.safe_load(qos_text) if qos_text else []
+            except yaml.YAMLError:
+                qos = []
+            stats = self.topics[key] = TopicStats(
+                name=channel.topic, msgtype=msgtype,
+                offered_qos_profiles=qos if isinstance(qos, list) else [],
+                type_description_hash=channel.metadata.get('topic_type_hash', ''),
+                serialization_format=channel.message_encoding or 'cdr')
+        stats.message_count += count
+
+
+def storage_files(bag: Path) -> List[str]:
+    """
+    The MCAP files of a bag folder: those named in metadata.yaml plus any other ``*.mcap``.
+
+    Parameters
+    ----------
+    bag : pathlib.Path
+        The bag folder.
+
+    Returns
+    -------
+    list of str
+        File names in split order (``<name>_0.mcap``, ``<name>_1.mcap``, ...).
+    """
+    names = set()
+    try:
+        names.update(read_metadata(bag).get('relative_file_paths') or [])
+    except BagFormatError:
+        pass
+    names.update(p.name for p in bag.glob('*.mcap'))
+    names = {n for n in names if (bag / n).is_file()}
+
+    def order(name: str):
+        match = _SPLIT_INDEX.search(name)
+        return (int(match.group(1)) if match else -1, name)
+
+    return sorted(names, key=order)
+
+
+def _intact(path: Path):
+    """Return the summary of an intact MCAP file, or None."""
+    try:
+        with open(path, 'rb') as handle:
+            size = handle.seek(0, os.SEEK_END)
+            if size < 2 * len(MAGIC):
+                return None
+            handle.seek(size - len(MAGIC))
+            if handle.read(len(MAGIC)) != MAGIC:
+                return None
+            handle.seek(0)
+            summary = make_reader(handle).get_summary()
+    except Exception:  # any failure means "not intact": the stream pass decides
+        return None
+    if summary is None or summary.statistics is None:
+        return None
+    return summary
+
+
+def _recover(path: Path, out: Path, table: _TopicTable, stats: FileStats,
+             custom: Dict[str, str]) -> Tuple[int, str]:
+    """Stream the complete records of ``path`` into a new MCAP ``out``; return (end, error)."""
+    schemas: Dict[int, Schema] = {}
+    channels: Dict[int, Channel] = {}
+    counts: Dict[int, int] = {}
+    new_schema: Dict[int, int] = {}
+    new_channel: Dict[int, int] = {}
+    good_end = 0
+    error = ''
+    with open(path, 'rb') as src, open(out, 'xb') as dst:
+        writer = McapWriter(dst, compression=CompressionType.NONE)
+        writer.start(PROFILE, LIBRARY)
+        reader = StreamReader(src, validate_crcs=True)
+        try:
+            for record in reader.records:
+                if isinstance(record, Schema):
+                    if record.id not in new_schema:
+                        schemas[record.id] = record
+                        new_schema[record.id] = writer.register_schema(
+                            record.name, record.encoding, record.data)
+                elif isinstance(record, Channel):
+                    if record.id not in new_channel:
+                        channels[record.id] = record
+                        new_channel[record.id] = writer.register_channel(
+                            record.topic, record.message_encoding,
+                            new_schema.get(record.schema_id, 0), dict(record.metadata))
+                elif isinstance(record, Message):
+                    if record.channel_id not in new_channel:
+                        continue
+                    writer.add_message(new_channel[record.channel_id], record.log_time,
+                                       record.data, record.publish_time, record.sequence)
+                    counts[record.channel_id] = counts.get(record.channel_id, 0) + 1
+                    stats.add(record.log_time)
+                elif isinstance(record, Metadata) and record.name == 'rosbag2':
+                    custom.update(_custom_from_record(record))
+                elif isinstance(record, Footer):
+                    break
+                good_end = src.tell()
+        except Exception as exc:  # truncation shows as EOF, struct or CRC errors
+            error = f'{type(exc).__name__}: {exc}' if str(exc) else type(exc).__name__
+        writer.finish()
+        dst.flush()
+        os.fsync(dst.fileno())
+    for cid, channel in channels.items():
+        table.add(channel, schemas.get(channel.schema_id), counts.get(cid, 0))
+    return good_end, error or 'truncated'
+
+
+def _custom_from_record(record: Metadata) -> Dict[str, str]:
+    try:
+        doc = yaml.safe_load(record.metadata.get('serialized_metadata', ''))
+        return {str(k): str(v) for k, v in (doc.get('custom_data') or {}).items()}
+    except (yaml.YAMLError, AttributeError):
+        return {}
+
+
+def repair_bag(bag_path, keep_damaged: bool = True) -> RepairReport:
+    """
+    Make a bag whose recorder died readable again.
+
+    Parameters
+    ----------
+    bag_path : str or pathlib.Path
+        The bag folder.
+    keep_damaged : bool
+        Keep each rewritten original as ``<file>.damaged``; delete it when False.
+
+    Returns
+    -------
+    RepairReport
+        What was found and done.
+
+    Raises
+    ------
+    BagFormatError
+        If the folder does not exist or holds no MCAP file.
+    """
+    bag = Path(bag_path)
+    if not bag.is_dir():
+        raise BagFormatError(f'{bag} is not a bag folder')
+    names = storage_files(bag)
+    if not names:
+        raise BagFormatError(f'{bag} holds no .mcap file')
+    custom: Dict[str, str] = {}
+    ros_distro = 'jazzy'
+    try:
+        old = read_metadata(bag)
+        custom.update({str(k): str(v) for k, v in (old.get('custom_data') or {}).items()})
+        ros_distro = str(old.get('ros_distro') or ros_distro)
+    except BagFormatError:
+        pass
+    from_files: Dict[str, str] = {}
+    table = _TopicTable()
+    files: List[FileStats] = []
+    reports: List[FileReport] = []
+    for name in names:
+        path = bag / name
+        stats = FileStats(name)
+        summary = _intact(path)
+        if summary is not None:
+            st = summary.statistics
+            stats.message_count = st.message_count
+            if st.message_count:
+                stats.start_ns, stats.end_ns = st.message_start_time, st.message_end_time
+            for cid, channel in summary.channels.items():
+                table.add(channel, summary.schemas.get(channel.schema_id),
+                          st.channel_message_counts.get(cid, 0))
+            reports.append(FileReport(name, 'ok', st.message_count))
+        else:
+            tmp = path.with_name(name + '.repair.tmp')
+            if tmp.exists():
+                tmp.unlink()
+            good_end, error = _recover(path, tmp, table, stats, from_files)
+            lost = path.stat().st_size - good_end
+            if keep_damaged:
+                os.replace(path, path.with_name(name + '.damaged'))
+            os.replace(tmp, path)
+            reports.append(FileReport(name, 'recovered', stats.message_count, lost, error))
+        files.append(stats)
+    for key, value in from_files.items():
+        custom.setdefault(key, value)
+    metadata = build_metadata(files, list(table.topics.values()), custom, ros_distro)
+    write_metadata(bag, metadata)
+    return RepairReport(bag, reports, metadata['rosbag2_bagfile_information'])
+
+
+__all__ = ['FileReport', 'METADATA_FILE', 'repair_bag', 'RepairReport', 'storage_files']
