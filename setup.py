@@ -30,6 +30,7 @@ COMMANDS = {
     'emfc-bag-info': 'emfc_ros.cli.bag_info:main',
     'emfc-generate': 'emfc_ros.cli.generate:main',
     'emfc-demo': 'emfc_ros.cli.demo:main',
+    'emfc-experiment': 'emfc_ros.cli.experiment:main',
     'emfc-model-summary': 'emfc_ros.cli.model_summary:main',
     'emfc-simulate': 'emfc_ros.cli.simulate:main',
 }

@@ -399,6 +399,34 @@ def unflatten(flat: Mapping[str, Any], sep: str = '.') -> dict:
     return out
 
 
+def flatten(nested: Mapping[str, Any], sep: str = '.', prefix: str = '') -> dict:
+    """
+    Turn nested dictionaries into dotted keys (the inverse of :func:`unflatten`).
+
+    Parameters
+    ----------
+    nested : Mapping
+        Nested mappings; lists and scalars are leaves.
+    sep : str
+        The separator.
+    prefix : str
+        Prepended to every key (with the separator).
+
+    Returns
+    -------
+    dict
+        ``{'section.coil_chirp.duration_s': 10.0, ...}``.
+    """
+    out: dict = {}
+    for key, value in nested.items():
+        name = f'{prefix}{sep}{key}' if prefix else str(key)
+        if isinstance(value, Mapping) and value:
+            out.update(flatten(value, sep, name))
+        else:
+            out[name] = value
+    return out
+
+
 def _check_range(name: str, value: float, minimum: Optional[float],
                  maximum: Optional[float], min_exclusive: bool) -> None:
     if minimum is not None:

@@ -475,6 +475,28 @@ class RecorderNode(Node):
 
     # -- status ----------------------------------------------------------------------------
 
+    def recorded_topics(self) -> List[str]:
+        """
+        Topics the recorder has subscribed to (for in-process supervisors).
+
+        Returns
+        -------
+        list of str
+            Fully qualified topic names.
+        """
+        return sorted(self._recorded)
+
+    def written_messages(self) -> Dict[str, int]:
+        """
+        Messages written to the bag so far, per topic (for in-process supervisors).
+
+        Returns
+        -------
+        dict
+            Topic name to message count; empty before recording starts.
+        """
+        return dict(self._writer.stats().messages) if self._writer is not None else {}
+
     def _status_dict(self) -> dict:
         status = {'state': self._state, 'output': str(self._output or ''),
                   'error': self._error, 'topics': sorted(self._recorded),

@@ -1,0 +1,408 @@
+"""
+emfc-experiment: run an identification experiment, record it, identify the balance.
+
+With no arguments: the shipped ``config/experiment_default.yaml`` (the paper's four-section
+identification trajectory plus the static-characteristic staircases, on the simulated
+balance, in simulated time). The nodes (signal_generator, plant_simulator, recorder) are
+composed in this process on a multi-threaded executor and talk over real DDS; the run
+writes one output folder: ``bag/`` (MCAP rosbag2), ``experiment.yaml`` (the excitation as
+played), ``run.yaml`` (the plan), the identification results and plots, ``timing.json`` and
+``summary.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+from pathlib import Path
+import sys
+import time
+from typing import Dict, List, Optional
+
+import yaml
+
+from emfc_ros.core.errors import ConfigError
+from emfc_ros.core.paths import config_file
+from emfc_ros.core.run_plan import load_plan, RunPlan
+
+DEFAULT_PLAN = 'experiment_default.yaml'
+
+
+class Phases:
+    """Wall time per phase of the run."""
+
+    def __init__(self) -> None:
+        self.seconds: Dict[str, float] = {}
+        self._name: Optional[str] = None
+        self._t0 = 0.0
+
+    def start(self, name: str) -> None:
+        """Close the running phase and start ``name``."""
+        self.stop()
+        self._name, self._t0 = name, time.monotonic()
+
+    def stop(self) -> None:
+        """Close the running phase."""
+        if self._name is not None:
+            self.seconds[self._name] = time.monotonic() - self._t0
+            self._name = None
+
+
+def _progress(text: str) -> None:
+    print(text, flush=True)
+
+
+def _plan_document(plan: RunPlan, load_kg: float) -> dict:
+    doc = dataclasses.asdict(plan)
+    doc['experiment'] = '(see experiment.yaml)'
+    doc['source'] = str(plan.source) if plan.source else None
+    doc['simulator']['balance_file'] = str(plan.simulator.balance_file or '')
+    doc['simulator']['load_mass_kg_used'] = load_kg
+    doc['recording']['topics'] = list(plan.recording.topics)
+    return {'run': doc}
+
+
+def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
+    """
+    Bring up the nodes, play the experiment, record it; return what happened.
+
+    Parameters
+    ----------
+    plan : RunPlan
+        The plan.
+    out : pathlib.Path
+        The output folder (created).
+    phases : Phases
+        Timing of the phases.
+
+    Returns
+    -------
+    dict
+        Samples, blocks, bag path, the pan load used, recorded message counts.
+
+    Raises
+    ------
+    RuntimeError
+        If a node refuses to start or the experiment does not finish in ``plan.timeout_s``.
+    """
+    import rclpy
+    from rclpy.executors import MultiThreadedExecutor
+    from rclpy.parameter import Parameter
+    from std_msgs.msg import Float64MultiArray, String
+    from std_srvs.srv import Trigger
+
+    from emfc_ros.core.blocks import SequenceTracker
+    from emfc_ros.core.model.parameters import BalanceParameters
+    from emfc_ros.core.signals import experiment_from_config
+    from emfc_ros.core.sim.balancing import balancing_load_mass_kg
+    from emfc_ros.nodes.convert import BLOCK_QOS, LATCHED_QOS, msg_to_block
+    from emfc_ros.nodes.plant_simulator import PlantSimulatorNode
+    from emfc_ros.nodes.recorder import RecorderNode
+    from emfc_ros.nodes.signal_generator import SignalGeneratorNode
+
+    phases.start('set up nodes')
+    experiment = experiment_from_config(plan.experiment)
+    experiment_path = out / 'experiment.yaml'
+    experiment_path.write_text(yaml.safe_dump({'experiment': plan.experiment},
+                                              sort_keys=False))
+    balance_path = plan.simulator.balance_file or config_file('balance_default.yaml')
+    params = BalanceParameters.load_yaml(balance_path)
+    coupled = plan.simulator.load_changer_coupled
+    load_kg = plan.simulator.load_mass_kg
+    if load_kg is None:
+        load_kg = balancing_load_mass_kg(params, coupled)
+    (out / 'run.yaml').write_text(yaml.safe_dump(_plan_document(plan, load_kg),
+                                                 sort_keys=False))
+    total = experiment.total_samples
+    rate = experiment.sample_rate_Hz
+    bag = out / 'bag'
+    ns = plan.namespace
+
+    rclpy.init()
+    nodes = []
+    try:
+        plant = PlantSimulatorNode(namespace=ns, parameter_overrides=[
+            Parameter('time_mode', value='owner'),
+            Parameter('sample_rate_Hz', value=float(rate)),
+            Parameter('balance_file', value=str(balance_path)),
+            Parameter('load_mass_kg', value=float(load_kg)),
+            Parameter('load_changer_coupled', value=bool(coupled)),
+            Parameter('seed', value=int(plan.simulator.seed)),
+            Parameter('noise', value=bool(plan.simulator.noise)),
+            Parameter('quantisation', value=bool(plan.simulator.quantisation)),
+            Parameter('state_rate_Hz', value=float(plan.simulator.state_rate_Hz)),
+            Parameter('publish_groups', value=False)])
+        nodes.append(plant)
+        recorder = RecorderNode(namespace=ns, parameter_overrides=[
+            Parameter('output', value=str(bag)),
+            Parameter('topics', value=list(plan.recording.topics)),
+            Parameter('flush_period_s', value=float(plan.recording.flush_period_s)),
+            Parameter('max_bag_size_B', value=int(plan.recording.max_bag_size_B)),
+            Parameter('max_bag_duration_s', value=float(plan.recording.max_bag_duration_s)),
+            Parameter('discovery_period_s', value=0.1),
+            Parameter('autostart', value=False),
+            Parameter('experiment_description', value=experiment_path.read_text())])
+        nodes.append(recorder)
+        generator = SignalGeneratorNode(namespace=ns, parameter_overrides=[
+            Parameter('experiment_file', value=str(experiment_path)),
+            Parameter('pacing', value='consumer'),
+            Parameter('block_size', value=int(plan.block_size)),
+            Parameter('window_blocks', value=8),
+            Parameter('autostart', value=False)])
+        nodes.append(generator)
+        runner = rclpy.create_node('experiment_runner', namespace=ns)
+        nodes.append(runner)
+
+        seen = {'samples': 0, 'blocks': 0, 'excitation_blocks': 0, 'status': {}}
+        tracker = SequenceTracker()
+
+        def on_measurements(msg: Float64MultiArray) -> None:
+            block = msg_to_block(msg)
+            tracker.observe(block.first_sample_index, block.n_samples, block.epoch)
+            seen['samples'] += block.n_samples
+            seen['blocks'] += 1
+
+        runner.create_subscription(Float64MultiArray, 'measurements', on_measurements,
+                                   BLOCK_QOS)
+        runner.create_subscription(
+            String, 'signal_generator/status',
+            lambda m: seen['status'].update(json.loads(m.data)), LATCHED_QOS)
+        clients = {name: runner.create_client(Trigger, name) for name in (
+            'signal_generator/start', 'recorder/start', 'recorder/stop')}
+        executor = MultiThreadedExecutor(num_threads=4)
+        for node in nodes:
+            executor.add_node(node)
+
+        def spin_until(predicate, timeout_s: float) -> bool:
+            deadline = time.monotonic() + timeout_s
+            while not predicate():
+                if time.monotonic() > deadline:
+                    return False
+                executor.spin_once(timeout_sec=0.02)
+            return True
+
+        def call(name: str, timeout_s: float = 10.0) -> Trigger.Response:
+            client = clients[name]
+            if not spin_until(client.service_is_ready, timeout_s):
+                raise RuntimeError(f'service {ns}/{name} did not appear in {timeout_s} s')
+            future = client.call_async(Trigger.Request())
+            if not spin_until(future.done, timeout_s):
+                raise RuntimeError(f'service {ns}/{name} did not answer in {timeout_s} s')
+            return future.result()
+
+        phases.start('discovery')
+        # The recorder subscribes once recording: start it first, then wait until it and
+        # the plant are subscribed to the excitation and the measurements.
+        answer = call('recorder/start')
+        if not answer.success:
+            raise RuntimeError(f'recorder refused to start: {answer.message}')
+        wanted = {f'{ns}/{t}' if not t.startswith('/') else t
+                  for t in ('excitation', 'measurements')}
+
+        def discovered() -> bool:
+            return (wanted <= set(recorder.recorded_topics())
+                    and generator.count_subscribers('excitation') >= 2
+                    and plant.count_subscribers('measurements') >= 2)
+
+        if not spin_until(discovered, 30.0):
+            raise RuntimeError('the nodes did not discover each other in 30 s: recorder '
+                               f'topics {recorder.recorded_topics()}, excitation subscribers '
+                               f'{generator.count_subscribers("excitation")}, measurement '
+                               f'subscribers {plant.count_subscribers("measurements")}')
+
+        phases.start('experiment')
+        answer = call('signal_generator/start')
+        if not answer.success:
+            raise RuntimeError(f'signal_generator refused to start: {answer.message}')
+        t0 = time.monotonic()
+        last = 0.0
+        while seen['samples'] < total:
+            if time.monotonic() - t0 > plan.timeout_s:
+                raise RuntimeError(f'experiment not finished after {plan.timeout_s} s: '
+                                   f'{seen["samples"]} of {total} samples measured')
+            executor.spin_once(timeout_sec=0.02)
+            now = time.monotonic()
+            if now - last >= 1.0:
+                last = now
+                _progress(f'  {100.0 * seen["samples"] / total:5.1f} %  section '
+                          f'{seen["status"].get("section") or "-":<32} simulated '
+                          f'{seen["samples"] / rate:6.2f} s of {total / rate:.2f} s, wall '
+                          f'{now - t0:5.1f} s')
+        _progress(f'  100.0 %  {total} samples measured in {time.monotonic() - t0:.1f} s '
+                  f'(simulated {total / rate:.1f} s)')
+
+        phases.start('close recording')
+        measurement_topic = f'{ns}/measurements'
+        # Everything the runner received has been published; wait (bounded) until the
+        # recorder has written as many measurement blocks, then close the bag.
+        spin_until(lambda: recorder.written_messages().get(measurement_topic, 0)
+                   >= seen['blocks'], 30.0)
+        # Other topics (joint states, diagnostics) trail the blocks: close once the bag has
+        # stopped growing for half a second (at most 10 s more).
+        quiet = {'count': -1, 'since': time.monotonic()}
+
+        def settled() -> bool:
+            count = sum(recorder.written_messages().values())
+            if count != quiet['count']:
+                quiet['count'], quiet['since'] = count, time.monotonic()
+            return time.monotonic() - quiet['since'] > 0.5
+
+        spin_until(settled, 10.0)
+        written = recorder.written_messages()
+        answer = call('recorder/stop', timeout_s=60.0)
+        if not answer.success:
+            raise RuntimeError(f'recorder did not close the bag: {answer.message}')
+        return {'total_samples': total, 'sample_rate_Hz': rate, 'bag': str(bag),
+                'load_mass_kg': load_kg, 'load_changer_coupled': coupled,
+                'measurement_blocks_received': seen['blocks'],
+                'measurement_stream': tracker.counters(),
+                'written_messages': written}
+    finally:
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def identify(plan: RunPlan, info: dict, out: Path, phases: Phases) -> List[str]:
+    """
+    Read the bag back and run the identification; return summary lines.
+
+    Parameters
+    ----------
+    plan : RunPlan
+        The plan.
+    info : dict
+        What :func:`record` returned.
+    out : pathlib.Path
+        The output folder.
+    phases : Phases
+        Timing of the phases.
+
+    Returns
+    -------
+    list of str
+        Markdown lines for the summary.
+    """
+    import numpy as np
+
+    from emfc_ros.core.bag import read_streams
+
+    phases.start('read bag')
+    streams = read_streams(info['bag'])
+    ns = plan.namespace
+    measurements = streams[f'{ns}/measurements']
+    lines = [f'Read back {measurements.n_samples} samples x {len(measurements.channel_names)} '
+             f'channels of `{ns}/measurements` from the bag (first sample index '
+             f'{measurements.first_sample_index}, gaps {len(measurements.gaps)}).', '']
+    excitation = streams[f'{ns}/excitation']
+    applied = measurements.channel('coil_setpoint_V')
+    lines.append(f'Largest difference between the excitation and the setpoint the DAC applied: '
+                 f'{float(np.max(np.abs(applied - excitation.channel("coil")))):.3g} V '
+                 '(coil).')
+    lines.append('')
+    if not plan.identification.get('enabled', True):
+        lines.append('Identification disabled in the plan (`identification.enabled: false`).')
+        return lines
+    try:
+        from emfc_ros.core.ident import pipeline  # noqa: F401
+    except ImportError:
+        lines.append('**Identification not run:** this version has no identification '
+                     'pipeline yet (issue 6); the run stops after recording. The bag holds '
+                     'everything needed to identify later.')
+        return lines
+    return lines + _run_pipeline(plan, streams, out, phases)
+
+
+def _run_pipeline(plan: RunPlan, streams: dict, out: Path, phases: Phases) -> List[str]:
+    from emfc_ros.core.ident import pipeline
+
+    phases.start('identify')
+    ns = plan.namespace
+    measurements = streams[f'{ns}/measurements']
+    description = streams[f'{ns}/excitation'].description
+    sections = description.extra.get('sections', []) if description is not None else []
+    recording = {name: measurements.channel(name) for name in measurements.channel_names}
+    options = {k: v for k, v in plan.identification.items() if k != 'enabled'}
+    result = pipeline.identify(recording, sections, options,
+                               sample_rate_Hz=measurements.sample_rate_Hz,
+                               progress=_pipeline_progress)
+    phases.start('report')
+    from emfc_ros.core.report import write_report
+    folder = out / 'identification'
+    write_report(result, folder)
+    return [f'Identification results, plots and summary: `{folder}/` (`results.yaml`, '
+            '`summary.md`).', ''] + (folder / 'summary.md').read_text().splitlines()
+
+
+def _pipeline_progress(step: str, fraction: float, message: str) -> None:
+    _progress(f'  identify: {step:<20} {100 * fraction:5.1f} %  {message}')
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    """
+    Entry point of ``emfc-experiment``.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Arguments (``sys.argv[1:]`` when None).
+
+    Returns
+    -------
+    int
+        0 on success, 1 if the run failed, 2 for a bad plan.
+    """
+    parser = argparse.ArgumentParser(prog='emfc-experiment',
+                                     description=__doc__.split('\n\n')[0])
+    parser.add_argument('plan', nargs='?', default=None,
+                        help=f'run plan YAML (default: the shipped {DEFAULT_PLAN})')
+    parser.add_argument('-o', '--out', default=None,
+                        help='output folder (default: out/<name>-<date>-<time>)')
+    parser.add_argument('--no-identify', action='store_true',
+                        help='stop after recording')
+    args = parser.parse_args(argv)
+    try:
+        plan = load_plan(Path(args.plan) if args.plan else config_file(DEFAULT_PLAN))
+    except (ConfigError, FileNotFoundError) as exc:
+        print(f'emfc-experiment: {exc}', file=sys.stderr)
+        return 2
+    out = Path(args.out) if args.out else Path('out') / (
+        f'{plan.name}-{time.strftime("%Y%m%d-%H%M%S")}')
+    if out.exists() and any(out.iterdir()):
+        print(f'emfc-experiment: output folder {out} exists and is not empty', file=sys.stderr)
+        return 2
+    out.mkdir(parents=True, exist_ok=True)
+    phases = Phases()
+    t0 = time.monotonic()
+    print(f'emfc-experiment: {plan.name} on the {plan.target}, output {out}', flush=True)
+    try:
+        info = record(plan, out, phases)
+        lines = [] if args.no_identify else identify(plan, info, out, phases)
+    except (RuntimeError, ConfigError, OSError, ValueError) as exc:
+        phases.stop()
+        print(f'emfc-experiment: failed: {exc}', file=sys.stderr)
+        (out / 'timing.json').write_text(json.dumps(phases.seconds, indent=2))
+        return 1
+    phases.stop()
+    wall = time.monotonic() - t0
+    timing = dict(phases.seconds, total=wall)
+    (out / 'timing.json').write_text(json.dumps(timing, indent=2))
+    summary = [f'# {plan.name}', '',
+               f'Target: {plan.target}, namespace `{plan.namespace}`, '
+               f'{info["total_samples"]} samples at {info["sample_rate_Hz"]:g} Hz '
+               f'({info["total_samples"] / info["sample_rate_Hz"]:.1f} s simulated), pan load '
+               f'{1e3 * info["load_mass_kg"]:.2f} g, load changer '
+               f'{"coupled" if info["load_changer_coupled"] else "not coupled"}.', '',
+               f'Bag: `{info["bag"]}`; measurement stream as received live: '
+               f'{info["measurement_stream"]}.', '',
+               '| phase | wall time [s] |', '|---|---|']
+    summary += [f'| {name} | {seconds:.2f} |' for name, seconds in timing.items()]
+    summary += [''] + lines
+    (out / 'summary.md').write_text('\n'.join(summary) + '\n')
+    print('\n'.join(summary))
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
