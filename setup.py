@@ -31,6 +31,8 @@ COMMANDS = {
     'emfc-generate': 'emfc_ros.cli.generate:main',
     'emfc-demo': 'emfc_ros.cli.demo:main',
     'emfc-experiment': 'emfc_ros.cli.experiment:main',
+    'emfc-identify': 'emfc_ros.cli.identify:main',
+    'emfc-device-emulator': 'emfc_ros.cli.device_emulator:main',
     'emfc-model-summary': 'emfc_ros.cli.model_summary:main',
     'emfc-simulate': 'emfc_ros.cli.simulate:main',
 }

@@ -1,0 +1,113 @@
+"""
+emfc-device-emulator: the UDP device emulator (simulated balance inside) as a process.
+
+``emfc-device-emulator [--bind 127.0.0.1] [--port N] [--config balance.yaml] [--channels 4]
+[--faults drop=0.01,duplicate=0.01,reorder=0.01,corrupt=0.01,delay_ms=5,stall_s=2,
+stall_after_s=1,die_after_s=30] [--seed S] [--duration-s T] [--allow-remote]``
+
+Prints the bound UDP port alone on the first line of stdout (``--port 0``, the default,
+picks a free one), then serves until SIGINT or SIGTERM, ``--duration-s`` or the injected
+death. It refuses a non-loopback ``--bind`` unless ``--allow-remote`` is given. The protocol
+is ``docs/device_protocol.md``.
+
+Exit codes: 0 stopped, 3 died as injected (``die_after_s``), 1 the device thread failed,
+2 usage or configuration error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+from typing import List, Optional
+
+from emfc_ros.core.device.emulator import check_bind_host, DeviceEmulator, Faults
+from emfc_ros.core.device.sim_backend import load_parameters
+
+PROG = 'emfc-device-emulator'
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG, description='Emulate the EMFC balance DAQ/FPGA device over UDP: control '
+                               'requests, paced measurement frames, setpoint frames, '
+                               'watchdog and fault injection.')
+    parser.add_argument('--bind', default='127.0.0.1',
+                        help='bind address (default 127.0.0.1; others need --allow-remote)')
+    parser.add_argument('--port', type=int, default=0, help='UDP port (default 0: any free)')
+    parser.add_argument('--config', help='balance parameters YAML (default: shipped defaults)')
+    parser.add_argument('--channels', type=int, default=4,
+                        help='analog inputs of the device: most channels a host may select')
+    parser.add_argument('--faults', default='', help='comma-separated key=value faults: drop, '
+                        'duplicate, reorder, corrupt (probabilities), delay_ms, stall_s, '
+                        'stall_after_s, die_after_s')
+    parser.add_argument('--seed', type=int, default=0, help='noise and fault seed')
+    parser.add_argument('--duration-s', type=float, default=0.0,
+                        help='stop after this long (default 0: run until interrupted)')
+    parser.add_argument('--allow-remote', action='store_true',
+                        help='permit a non-loopback bind address (exposes the emulator)')
+    return parser
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    """
+    Run the emulator.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Arguments (default: ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        Exit code: 0 stopped, 1 device thread failed, 2 usage or configuration error,
+        3 died as injected.
+    """
+    try:
+        args = _parser().parse_args(argv)
+    except SystemExit as exc:          # argparse already printed the message
+        return int(exc.code or 0)
+    try:
+        host = check_bind_host(args.bind, args.allow_remote)
+        if not 1 <= args.channels <= 64:
+            raise ValueError(f'--channels must be in [1, 64], got {args.channels}')
+        if not 0 <= args.port <= 65535:
+            raise ValueError(f'--port must be in [0, 65535], got {args.port}')
+        faults = Faults.parse(args.faults)
+        params = load_parameters(args.config)
+        emulator = DeviceEmulator(host, args.port, params=params, seed=args.seed,
+                                  max_inputs=args.channels, faults=faults,
+                                  allow_remote=args.allow_remote)
+        port = emulator.start()
+    except (ValueError, OSError) as exc:
+        print(f'{PROG}: error: {exc}', file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: stop.set())
+    print(port, flush=True)
+    print(f'{PROG}: listening on {host}:{port} (faults: {args.faults or "none"})',
+          file=sys.stderr, flush=True)
+    end = time.monotonic() + args.duration_s if args.duration_s > 0 else float('inf')
+    try:
+        while not stop.is_set() and not emulator.dead.is_set() and time.monotonic() < end:
+            stop.wait(min(0.1, max(0.0, end - time.monotonic())))
+    except KeyboardInterrupt:
+        pass
+    died = emulator.dead.is_set()
+    emulator.stop()
+    if emulator.error is not None:
+        print(f'{PROG}: device thread failed: {emulator.error!r}', file=sys.stderr)
+        return 1
+    if died:
+        print(f'{PROG}: died as injected', file=sys.stderr)
+        return 3
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

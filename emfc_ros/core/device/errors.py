@@ -1,0 +1,36 @@
+"""
+Error classes of the device bridge, one per concern.
+
+Each subclasses the matching builtin so callers may catch either.
+"""
+
+
+class ProtocolError(ValueError):
+    """Bytes are not a valid frame or control message of the device protocol."""
+
+
+class DeviceConfigError(ValueError):
+    """A device configuration (channels, scaling, limits, generator) is invalid."""
+
+
+class DeviceError(OSError):
+    """The device failed, refused a request or is not in the state the call needs."""
+
+
+class DeviceTimeoutError(DeviceError, TimeoutError):
+    """The device did not answer a request within its timeout and retries."""
+
+
+class DeviceRefusedError(DeviceError):
+    """
+    The device answered a request with an error status.
+
+    Attributes
+    ----------
+    status : int
+        The protocol status code (see :mod:`emfc_ros.core.device.protocol`).
+    """
+
+    def __init__(self, status: int, message: str) -> None:
+        self.status = status
+        super().__init__(f'device refused the request (status {status}): {message}')

@@ -1,0 +1,479 @@
+"""
+The simulated device: the balance simulator behind the device interface, in process.
+
+:class:`SimulatedDevice` is the sample-clocked core of a device (output sources, clamping,
+watchdog cut-off, simulator, input scaling to int16 codes). :class:`SimBackend` exposes it as a
+back-end paced by the caller: every :meth:`SimBackend.read_block` simulates the next block, so
+no thread is needed and runs are reproducible. The UDP device emulator
+(:mod:`emfc_ros.core.device.emulator`) runs the same core on a real-time clock, so both give
+the same samples for the same seed and excitation.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
+
+import numpy as np
+
+from emfc_ros.core.blocks import Block, Continuity
+from emfc_ros.core.device.backend import (DeviceConfig, from_codes, input_scaling,
+                                          MAX_CHANNELS, to_codes)
+from emfc_ros.core.device.errors import DeviceConfigError, DeviceError
+from emfc_ros.core.device.function_generator import FunctionGenerator, GeneratorSpec
+from emfc_ros.core.excitation_queue import ExcitationQueue
+
+IDLE = 'idle'
+CONFIGURED = 'configured'
+RUNNING = 'running'
+#: The simulator has two actuator inputs: coil and load-changer setpoints.
+N_OUTPUTS = 2
+
+ENGINE_COUNTERS = ('samples_sent', 'setpoint_frames_received', 'setpoint_late_samples',
+                   'underrun_samples', 'clamped_samples', 'watchdog_trips')
+
+
+def load_parameters(path: Optional[str] = None) -> Any:
+    """
+    Balance parameters from a YAML file, or the shipped defaults.
+
+    Parameters
+    ----------
+    path : str, optional
+        A ``balance.yaml``; ``config/balance_default.yaml`` when None.
+
+    Returns
+    -------
+    BalanceParameters
+        The parameters.
+    """
+    from emfc_ros.core.model.parameters import BalanceParameters
+    from emfc_ros.core.paths import config_file
+    return BalanceParameters.load_yaml(path if path else config_file('balance_default.yaml'))
+
+
+class SimulatedDevice:
+    """
+    The core of a simulated DAQ device, advanced block by block on its sample clock.
+
+    Output ``j`` at device sample ``k`` is the function generator's value when its waveform
+    is not ``'off'``, otherwise the host's setpoint stream (an :class:`ExcitationQueue`;
+    samples the stream does not cover once it has begun are underruns at the safe value,
+    queued samples behind the clock are dropped as late). Outputs are clamped to their
+    limits, and forced to the safe values from the watchdog's trip index on. The simulator
+    runs the outputs; the configured input channels are converted to int16 codes.
+
+    Parameters
+    ----------
+    params : BalanceParameters, optional
+        The balance; the shipped defaults when None.
+    seed : int
+        Simulator noise seed.
+    max_inputs : int
+        Most input channels a configuration may select (the device's analog inputs).
+    simulator_options : mapping, optional
+        Extra keyword arguments of :class:`Simulator` (``noise``, ``load_mass_kg``...).
+    """
+
+    def __init__(self, params: Any = None, seed: int = 0, *, max_inputs: int = MAX_CHANNELS,
+                 simulator_options: Optional[Mapping[str, Any]] = None) -> None:
+        from emfc_ros.core.sim import channels
+        self.params = load_parameters() if params is None else params
+        self.seed = int(seed)
+        self.max_inputs = int(max_inputs)
+        self.simulator_options = dict(simulator_options or {})
+        reference = bool(self.simulator_options.get('reference_channels', True))
+        self.catalogue: Tuple[str, ...] = channels.channel_names(reference)
+        self.sim: Any = None
+        self.config: Optional[DeviceConfig] = None
+        self.state = IDLE
+        self.epoch = 0
+        self.index = 0
+        self.generator: Optional[FunctionGenerator] = None
+        self.queue: Optional[ExcitationQueue] = None
+        self.watchdog_trip_index: Optional[int] = None
+        self.counters: Dict[str, int] = dict.fromkeys(ENGINE_COUNTERS, 0)
+        self._rows: List[int] = []
+        self._scale = np.ones(0)
+        self._offset = np.zeros(0)
+
+    def warm_up(self, sample_rate_Hz: float = 10000.0) -> None:
+        """
+        Build the simulator now (the first build loads the compiled kernel, about a second).
+
+        Parameters
+        ----------
+        sample_rate_Hz : float
+            Sample rate to build it for [Hz].
+        """
+        if self.sim is None:
+            from emfc_ros.core.sim.simulator import Simulator
+            self.sim = Simulator(self.params, sample_rate_Hz, self.seed,
+                                 **self.simulator_options)
+
+    def configure(self, config: DeviceConfig) -> None:
+        """
+        Accept a configuration (not while running).
+
+        Parameters
+        ----------
+        config : DeviceConfig
+            Inputs must name simulator channels; there must be two outputs (coil, load
+            changer).
+
+        Raises
+        ------
+        DeviceError
+            If running.
+        DeviceConfigError
+            If a channel is unknown or the counts do not fit.
+        """
+        if self.state == RUNNING:
+            raise DeviceError('configure while running: stop first')
+        unknown = [n for n in config.input_names if n not in self.catalogue]
+        if unknown:
+            raise DeviceConfigError(f'unknown input channels {unknown}; the device has '
+                                    f'{list(self.catalogue)}')
+        if len(config.inputs) > self.max_inputs:
+            raise DeviceConfigError(f'{len(config.inputs)} input channels requested, the device '
+                                    f'has {self.max_inputs}')
+        if len(config.outputs) != N_OUTPUTS:
+            raise DeviceConfigError(f'the simulated balance has {N_OUTPUTS} outputs (coil, load '
+                                    f'changer), got {len(config.outputs)}')
+        if self.sim is None or self.sim.sample_rate_Hz != config.sample_rate_Hz:
+            from emfc_ros.core.sim.simulator import Simulator
+            try:
+                self.sim = Simulator(self.params, config.sample_rate_Hz, self.seed,
+                                     **self.simulator_options)
+            except (TypeError, ValueError) as exc:
+                raise DeviceConfigError(f'simulator: {exc}') from exc
+        self.config = config
+        self._rows = [self.sim.channel_names.index(n) for n in config.input_names]
+        self._scale, self._offset = input_scaling(config)
+        self.generator = FunctionGenerator([GeneratorSpec()] * N_OUTPUTS,
+                                           config.sample_rate_Hz)
+        self.state = CONFIGURED
+
+    def set_generator(self, specs: Sequence[GeneratorSpec]) -> None:
+        """
+        Configure the function generator, one spec per output.
+
+        Parameters
+        ----------
+        specs : sequence of GeneratorSpec
+            One per output channel.
+
+        Raises
+        ------
+        DeviceError
+            If not configured.
+        DeviceConfigError
+            If the count is wrong or a signal cannot be built.
+        """
+        if self.config is None:
+            raise DeviceError('function generator before configure')
+        if len(specs) != len(self.config.outputs):
+            raise DeviceConfigError(f'need {len(self.config.outputs)} generator specs, got '
+                                    f'{len(specs)}')
+        self.generator = FunctionGenerator(specs, self.config.sample_rate_Hz)
+
+    def start(self) -> int:
+        """
+        Start at sample index 0 in a new epoch.
+
+        Returns
+        -------
+        int
+            The new epoch.
+
+        Raises
+        ------
+        DeviceError
+            If not configured.
+        """
+        if self.config is None:
+            raise DeviceError('start before configure')
+        self.epoch = (self.epoch + 1) % 2 ** 32
+        self.index = 0
+        self.queue = ExcitationQueue(self.config.safe_values_V)
+        self.watchdog_trip_index = None
+        self.state = RUNNING
+        return self.epoch
+
+    def stop(self) -> None:
+        """Stop; the outputs hold their safe values."""
+        if self.state == RUNNING:
+            self.state = CONFIGURED
+
+    def push_setpoints(self, first_sample_index: int, samples_V: np.ndarray) -> Continuity:
+        """
+        Queue host setpoints for the current epoch.
+
+        Parameters
+        ----------
+        first_sample_index : int
+            Device sample index of the first column.
+        samples_V : numpy.ndarray
+            Shape ``(outputs, n)`` [V].
+
+        Returns
+        -------
+        Continuity
+            How the block continued the stream (duplicates and late blocks are dropped).
+
+        Raises
+        ------
+        DeviceError
+            If not running.
+        DeviceConfigError
+            If the shape is wrong or a value is not finite.
+        """
+        if self.state != RUNNING or self.queue is None:
+            raise DeviceError('setpoints while not running')
+        samples = np.asarray(samples_V, dtype=np.float64)
+        if samples.ndim != 2 or samples.shape[0] != len(self.config.outputs) or \
+                not np.all(np.isfinite(samples)) or first_sample_index < 0:
+            raise DeviceConfigError(f'setpoints must be finite, shape ({len(self.config.outputs)},'
+                                    f' n), first index >= 0; got shape {samples.shape}')
+        self.counters['setpoint_frames_received'] += 1
+        return self.queue.push(Block(int(first_sample_index), self.config.sample_rate_Hz,
+                                     self.epoch, samples))
+
+    @property
+    def watchdog_tripped(self) -> bool:
+        """
+        Whether the watchdog holds the outputs at their safe values.
+
+        Returns
+        -------
+        bool
+            True from a trip until the next START.
+        """
+        return self.watchdog_trip_index is not None
+
+    def trip_watchdog(self, at_sample_index: int) -> None:
+        """
+        Drive the outputs to their safe values from a sample index on (until START).
+
+        Parameters
+        ----------
+        at_sample_index : int
+            First sample at the safe value (not earlier than the next sample).
+        """
+        if self.watchdog_trip_index is None and self.state == RUNNING:
+            self.watchdog_trip_index = max(int(at_sample_index), self.index)
+            self.counters['watchdog_trips'] += 1
+
+    def _stream(self, first: int, n: int, out: np.ndarray) -> None:
+        q = self.queue
+        if q is None or q.tracker.expected is None:
+            return                                   # the host has not streamed yet
+        if q.head_index < first:                     # queued samples behind the clock
+            late = min(first - q.head_index, q.queued)
+            if late:
+                q.pop(late)
+                self.counters['setpoint_late_samples'] += late
+        lead = max(0, q.head_index - first)          # before the stream's next sample
+        if lead >= n:
+            return
+        take = min(n - lead, q.queued)
+        if take:
+            out[:, lead:lead + take] = q.pop(take)[0]
+        self.counters['underrun_samples'] += n - lead - take
+
+    def step(self, n: int) -> Tuple[int, np.ndarray, np.ndarray]:
+        """
+        Produce the next ``n`` samples.
+
+        Parameters
+        ----------
+        n : int
+            Samples.
+
+        Returns
+        -------
+        first_sample_index : int
+            Device index of the first sample.
+        codes : numpy.ndarray
+            int16 input codes, shape ``(inputs, n)``.
+        outputs_V : numpy.ndarray
+            Applied outputs [V] (after clamping, before the DAC), shape ``(outputs, n)``.
+
+        Raises
+        ------
+        DeviceError
+            If not running.
+        """
+        if self.state != RUNNING:
+            raise DeviceError('step while not running')
+        cfg = self.config
+        first = self.index
+        safe = cfg.safe_values_V[:, None]
+        out = np.repeat(safe, n, axis=1)
+        gen = self.generator
+        if not all(gen.active(j) for j in range(len(cfg.outputs))):
+            self._stream(first, n, out)
+        for j in range(len(cfg.outputs)):
+            if gen.active(j):
+                out[j] = gen.samples(j, first, n)
+        lo = np.array([c.min_V for c in cfg.outputs])[:, None]
+        hi = np.array([c.max_V for c in cfg.outputs])[:, None]
+        self.counters['clamped_samples'] += int(np.count_nonzero((out < lo) | (out > hi)))
+        np.clip(out, lo, hi, out=out)
+        if self.watchdog_trip_index is not None:
+            out[:, max(0, min(n, self.watchdog_trip_index - first)):] = safe
+        values = self.sim.step_block(out)[self._rows]
+        self.index += n
+        self.counters['samples_sent'] += n
+        return first, to_codes(values, self._scale, self._offset), out
+
+    def to_si(self, codes: np.ndarray) -> np.ndarray:
+        """
+        Scale input codes to SI values with the active configuration.
+
+        Parameters
+        ----------
+        codes : numpy.ndarray
+            Shape ``(inputs, n)``.
+
+        Returns
+        -------
+        numpy.ndarray
+            float64 values.
+        """
+        return from_codes(codes, self._scale, self._offset)
+
+    def all_counters(self) -> Dict[str, int]:
+        """
+        Engine counters plus the setpoint queue's.
+
+        Returns
+        -------
+        dict
+            Counter name to value.
+        """
+        out = dict(self.counters)
+        if self.queue is not None:
+            qc = self.queue.counters()
+            out.update({'setpoint_gaps': qc['gaps'], 'setpoint_duplicates': qc['duplicates'],
+                        'setpoint_reordered': qc['reordered'],
+                        'gap_filled_samples': qc['gap_filled_samples']})
+        return out
+
+
+class SimBackend:
+    """
+    Back-end ``'sim'``: the simulated balance in process, paced by the caller.
+
+    Each :meth:`read_block` simulates ``block_size`` samples, so blocks are always contiguous.
+    There is no watchdog (nothing runs between calls); the transport counters stay 0.
+
+    Parameters
+    ----------
+    params : BalanceParameters, optional
+        The balance; read from ``config_path`` or the shipped defaults when None.
+    seed : int
+        Noise seed.
+    config_path : str, optional
+        A ``balance.yaml`` to read the parameters from.
+    simulator_options : mapping, optional
+        Extra keyword arguments of the simulator.
+    """
+
+    name = 'sim'
+
+    def __init__(self, params: Any = None, seed: int = 0, *, config_path: Optional[str] = None,
+                 simulator_options: Optional[Mapping[str, Any]] = None) -> None:
+        if params is None:
+            params = load_parameters(config_path)
+        self.device = SimulatedDevice(params, seed, simulator_options=simulator_options)
+        self._blocks = 0
+
+    def configure(self, config: DeviceConfig) -> None:
+        """
+        Configure the simulated device.
+
+        Parameters
+        ----------
+        config : DeviceConfig
+            The configuration.
+        """
+        self.device.configure(config)
+
+    def start(self) -> int:
+        """
+        Start at index 0.
+
+        Returns
+        -------
+        int
+            The new epoch.
+        """
+        return self.device.start()
+
+    def stop(self) -> None:
+        """Stop."""
+        self.device.stop()
+
+    def write_setpoints(self, first_sample_index: int, samples_V: np.ndarray) -> None:
+        """
+        Queue setpoints.
+
+        Parameters
+        ----------
+        first_sample_index : int
+            Device index of the first column.
+        samples_V : numpy.ndarray
+            Shape ``(outputs, n)`` [V].
+        """
+        self.device.push_setpoints(first_sample_index, samples_V)
+
+    def set_function_generator(self, specs: Sequence[GeneratorSpec]) -> None:
+        """
+        Configure the on-device generator.
+
+        Parameters
+        ----------
+        specs : sequence of GeneratorSpec
+            One per output.
+        """
+        self.device.set_generator(specs)
+
+    def read_block(self, timeout_s: float = 1.0) -> Optional[Block]:
+        """
+        Simulate and return the next block.
+
+        Parameters
+        ----------
+        timeout_s : float
+            Unused (the simulation does not wait).
+
+        Returns
+        -------
+        Block or None
+            The block in SI units; None when not running.
+        """
+        if self.device.state != RUNNING:
+            return None
+        first, codes, _ = self.device.step(self.device.config.block_size)
+        self._blocks += 1
+        return Block(first, self.device.config.sample_rate_Hz, self.device.epoch,
+                     self.device.to_si(codes))
+
+    def health(self) -> Dict[str, int]:
+        """
+        Health counters.
+
+        Returns
+        -------
+        dict
+            Blocks delivered, zero transport defects, and the device counters.
+        """
+        out = {'frames_received': self._blocks, 'blocks_delivered': self._blocks, 'gaps': 0,
+               'missing_samples': 0, 'duplicates': 0, 'reordered': 0, 'corrupt': 0, 'late': 0,
+               'heartbeat_misses': 0, 'reconnects': 0}
+        out.update({f'device_{k}': v for k, v in self.device.all_counters().items()})
+        return out
+
+    def close(self) -> None:
+        """Stop."""
+        self.stop()

@@ -1,0 +1,203 @@
+"""Device protocol: round trips of every message, fuzzed decoders, frame limits."""
+
+import struct
+import zlib
+
+from hypothesis import given, HealthCheck, settings, strategies as st
+import numpy as np
+import pytest
+
+from emfc_ros.core.device import protocol as proto
+from emfc_ros.core.device.backend import default_device_config, InputChannel, OutputChannel
+from emfc_ros.core.device.errors import ProtocolError
+from emfc_ros.core.device.function_generator import GeneratorSpec
+
+CONFIG = default_device_config(
+    20000.0, 800, ('coil_current_A', 'sensor_V', 'coil_setpoint_V', 'position_m'),
+    safe_V=(0.5, 0.0), limits_V=(-2.0, 3.0), watchdog_timeout_s=0.25)
+SPECS = [GeneratorSpec('chirp', 0.5, 1.0, 100.0, 2.0, 'linear', 0.1, gain=2.0, offset_V=0.7),
+         GeneratorSpec('prbs', 0.2, prbs_order=7, prbs_hold_samples=3)]
+
+
+def _roundtrip(message):
+    return proto.decode_message(proto.encode_message(message))
+
+
+def test_int16_and_float64_frames_round_trip():
+    codes = np.arange(-6, 6, dtype=np.int16).reshape(3, 4) * 1000
+    frame = proto.Frame(proto.STREAM_MEASUREMENT, 2 ** 32 - 1, 7, 2 ** 53 - 5, codes)
+    data = proto.encode_frame(frame)
+    assert len(data) == proto.FRAME_HEADER.size + codes.size * 2 + 4 == 56
+    back = proto.decode_frame(data)
+    assert (back.stream_id, back.sequence, back.epoch, back.first_sample_index) == \
+        (proto.STREAM_MEASUREMENT, 2 ** 32 - 1, 7, 2 ** 53 - 5)
+    assert back.samples.dtype == np.int16 and np.array_equal(back.samples, codes)
+    values = np.array([[0.1, -2.5e-3], [1e300, -0.0]])
+    back = proto.decode_frame(proto.encode_frame(
+        proto.Frame(proto.STREAM_SETPOINT, 0, 1, 12, values)))
+    assert back.sample_format == proto.FORMAT_FLOAT64 and np.array_equal(back.samples, values)
+
+
+def test_frame_layout_is_little_endian_with_crc_last():
+    data = proto.encode_frame(proto.Frame(proto.STREAM_MEASUREMENT, 5, 2, 1000,
+                                          np.array([[1, -1]], dtype=np.int16)))
+    assert data[:4] == b'EMFD'
+    assert struct.unpack_from('<BBBBIIQHH', data, 4) == (1, 1, 1, 0, 5, 2, 1000, 1, 2)
+    assert data[28:32] == b'\x01\x00\xff\xff'
+    assert struct.unpack('<I', data[-4:])[0] == zlib.crc32(data[:-4])
+
+
+def test_frames_larger_than_a_datagram_are_refused_and_the_limit_is_exact():
+    n = proto.max_samples_per_frame(4, proto.FORMAT_INT16)
+    assert n == (65507 - 32) // 8 == 8184
+    assert proto.frame_size(4, n, proto.FORMAT_INT16) <= proto.MAX_DATAGRAM_BYTES
+    with pytest.raises(ProtocolError):
+        proto.encode_frame(proto.Frame(1, 0, 0, 0, np.zeros((4, n + 1), dtype=np.int16)))
+
+
+def test_corrupted_or_truncated_frames_raise_protocol_error():
+    data = proto.encode_frame(proto.Frame(1, 3, 1, 0, np.ones((2, 10), dtype=np.int16)))
+    for i in range(len(data)):
+        bad = bytearray(data)
+        bad[i] ^= 0x40
+        with pytest.raises(ProtocolError):
+            proto.decode_frame(bytes(bad))
+    for n in range(len(data)):
+        with pytest.raises(ProtocolError):
+            proto.decode_frame(data[:n])
+    nan = proto.encode_frame(proto.Frame(2, 0, 1, 0, np.array([[np.nan]])))
+    with pytest.raises(ProtocolError, match='non-finite'):
+        proto.decode_frame(nan)
+
+
+def test_configure_round_trip_keeps_channels_scaling_and_limits():
+    body = proto.encode_configure(CONFIG, 4321)
+    msg = _roundtrip(proto.Message(proto.CONFIGURE, 17, body=body))
+    assert (msg.type, msg.request_id, msg.is_response) == (proto.CONFIGURE, 17, False)
+    config, port = proto.decode_configure(msg.body)
+    assert config == CONFIG and port == 4321
+    assert config.inputs[0] == InputChannel('coil_current_A', 'A', 20.0 / 65536 / 100.0)
+    assert config.outputs[0] == OutputChannel('coil_V', -2.0, 3.0, 0.5)
+
+
+def test_configure_with_invalid_values_is_a_protocol_error():
+    body = bytearray(proto.encode_configure(CONFIG))
+    struct.pack_into('<d', body, 0, float('nan'))
+    with pytest.raises(ProtocolError, match='sample_rate_Hz'):
+        proto.decode_configure(bytes(body))
+    with pytest.raises(ProtocolError, match='trailing'):
+        proto.decode_configure(proto.encode_configure(CONFIG) + b'\0')
+
+
+def test_funcgen_start_stop_heartbeat_status_round_trip():
+    msg = _roundtrip(proto.Message(proto.FUNCGEN, 1, body=proto.encode_funcgen(SPECS)))
+    assert proto.decode_funcgen(msg.body) == SPECS
+    for mtype in (proto.START, proto.STOP):
+        assert _roundtrip(proto.Message(mtype, 9)) == proto.Message(mtype, 9)
+    start = _roundtrip(proto.Message(proto.START, 9, proto.KIND_RESPONSE,
+                                     body=proto.START_RESPONSE.pack(3, 0xDEADBEEF)))
+    assert proto.START_RESPONSE.unpack(start.body) == (3, 0xDEADBEEF)
+    beat = proto.HEARTBEAT_REQUEST.pack(123456789)
+    assert _roundtrip(proto.Message(proto.HEARTBEAT, 2, body=beat)).body == beat
+    reply = proto.HeartbeatReply(123456789, 5000, 3, 77, proto.STATE_RUNNING, True, 12, 1)
+    msg = _roundtrip(proto.Message(proto.HEARTBEAT, 2, proto.KIND_RESPONSE,
+                                   body=proto.encode_heartbeat_reply(reply)))
+    assert msg.is_response and proto.decode_heartbeat_reply(msg.body) == reply
+    counters = {name: i * 1000 for i, name in enumerate(proto.DEVICE_COUNTERS)}
+    status = proto.StatusReply(3, 77, proto.STATE_CONFIGURED, False, counters,
+                               proto.encode_configure(CONFIG))
+    msg = _roundtrip(proto.Message(proto.STATUS, 4, proto.KIND_RESPONSE,
+                                   body=proto.encode_status_reply(status)))
+    back = proto.decode_status_reply(msg.body)
+    assert back == status and back.config() == CONFIG
+
+
+def test_error_response_carries_status_and_text():
+    msg = _roundtrip(proto.Message(proto.START, 5, proto.KIND_RESPONSE, proto.BAD_STATE,
+                                   'start before configure'.encode()))
+    assert msg.status == proto.BAD_STATE and msg.error_text() == 'start before configure'
+
+
+def test_out_of_range_fields_are_refused_when_encoding():
+    with pytest.raises(ProtocolError):
+        proto.encode_message(proto.Message(99, 1))
+    with pytest.raises(ProtocolError):
+        proto.encode_frame(proto.Frame(1, 2 ** 32, 0, 0, np.zeros((1, 1), dtype=np.int16)))
+    with pytest.raises(ProtocolError, match='int16'):
+        proto.encode_frame(proto.Frame(1, 0, 0, 0, np.array([[40000]], dtype=np.int32)))
+
+
+BODY_DECODERS = (proto.decode_configure, proto.decode_funcgen, proto.decode_heartbeat_reply,
+                 proto.decode_status_reply)
+FUZZ = settings(max_examples=300, deadline=None,
+                suppress_health_check=[HealthCheck.too_slow])
+
+
+def _only_protocol_errors(fn, data):
+    try:
+        fn(data)
+    except ProtocolError:
+        pass
+
+
+@FUZZ
+@given(st.binary(max_size=200))
+def test_fuzz_random_bytes_raise_only_protocol_error(data):
+    for fn in (proto.decode_frame, proto.decode_message) + BODY_DECODERS:
+        _only_protocol_errors(fn, data)
+        _only_protocol_errors(fn, proto.MAGIC_FRAME + b'\x01' + data)
+        _only_protocol_errors(fn, proto.MAGIC_CONTROL + b'\x01' + data)
+
+
+def _with_crc(head: bytes) -> bytes:
+    return head + struct.pack('<I', zlib.crc32(head))
+
+
+@FUZZ
+@given(st.integers(0, 255), st.integers(0, 255), st.integers(0, 255), st.integers(0, 2 ** 32 - 1),
+       st.integers(0, 2 ** 64 - 1), st.integers(0, 65535), st.integers(0, 65535),
+       st.binary(max_size=64))
+def test_fuzz_frames_with_valid_crc_raise_only_protocol_error(stream, fmt, flags, seq, first,
+                                                              n_ch, n_s, payload):
+    head = struct.pack('<4sBBBBIIQHH', b'EMFD', 1, stream, fmt, flags, seq, 0, first, n_ch,
+                       n_s)
+    _only_protocol_errors(proto.decode_frame, _with_crc(head + payload))
+
+
+@FUZZ
+@given(st.integers(0, 255), st.integers(0, 255), st.integers(0, 255), st.integers(0, 70000),
+       st.binary(max_size=300))
+def test_fuzz_control_messages_with_valid_crc_raise_only_protocol_error(mtype, kind, status,
+                                                                        length, body):
+    head = struct.pack('<4sBBBBII', b'EMFC', 1, mtype, kind, status, 1, length) + body
+    _only_protocol_errors(proto.decode_message, _with_crc(head))
+    for fn in BODY_DECODERS:
+        _only_protocol_errors(fn, body)
+
+
+@FUZZ
+@given(st.binary(min_size=1, max_size=1), st.integers(0, 2000))
+def test_fuzz_mutated_valid_bodies_raise_only_protocol_error(byte, position):
+    for body in (proto.encode_configure(CONFIG), proto.encode_funcgen(SPECS)):
+        pos = position % len(body)
+        mutated = body[:pos] + byte + body[pos + 1:]
+        for fn in BODY_DECODERS:
+            _only_protocol_errors(fn, mutated)
+            _only_protocol_errors(fn, mutated[:pos])
+
+
+@FUZZ
+@given(st.integers(1, 8), st.integers(1, 300), st.integers(0, 2 ** 32 - 1),
+       st.integers(0, 2 ** 53 - 1), st.integers(0, 2 ** 32 - 1), st.booleans(),
+       st.integers(0, 2 ** 32 - 1))
+def test_fuzz_valid_frames_round_trip(n_ch, n_s, seq, first, epoch, as_int, seed):
+    rng = np.random.default_rng(seed)
+    if as_int:
+        samples = rng.integers(-32768, 32768, n_ch * n_s).astype(np.int16)
+    else:
+        samples = rng.standard_normal(n_ch * n_s) * 10.0 ** rng.integers(-300, 300, n_ch * n_s)
+    frame = proto.Frame(proto.STREAM_SETPOINT, seq, epoch, first, samples.reshape(n_ch, n_s))
+    back = proto.decode_frame(proto.encode_frame(frame))
+    assert (back.sequence, back.epoch, back.first_sample_index) == (seq, epoch, first)
+    assert back.samples.dtype == frame.samples.dtype
+    assert np.array_equal(back.samples, frame.samples)
