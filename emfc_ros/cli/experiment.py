@@ -311,22 +311,17 @@ def identify(plan: RunPlan, info: dict, out: Path, phases: Phases) -> List[str]:
                      'pipeline yet (issue 6); the run stops after recording. The bag holds '
                      'everything needed to identify later.')
         return lines
-    return lines + _run_pipeline(plan, streams, out, phases)
+    return lines + _run_pipeline(plan, info, streams, out, phases)
 
 
-def _run_pipeline(plan: RunPlan, streams: dict, out: Path, phases: Phases) -> List[str]:
-    from emfc_ros.core.ident import pipeline
+def _run_pipeline(plan: RunPlan, info: dict, streams: dict, out: Path,
+                  phases: Phases) -> List[str]:
+    from emfc_ros.core.ident.from_bag import identify_bag
 
     phases.start('identify')
-    ns = plan.namespace
-    measurements = streams[f'{ns}/measurements']
-    description = streams[f'{ns}/excitation'].description
-    sections = description.extra.get('sections', []) if description is not None else []
-    recording = {name: measurements.channel(name) for name in measurements.channel_names}
     options = {k: v for k, v in plan.identification.items() if k != 'enabled'}
-    result = pipeline.identify(recording, sections, options,
-                               sample_rate_Hz=measurements.sample_rate_Hz,
-                               progress=_pipeline_progress)
+    result, _ = identify_bag(Path(info['bag']), options, namespace=plan.namespace,
+                             progress=_pipeline_progress, streams=streams)
     phases.start('report')
     from emfc_ros.core.report import write_report
     folder = out / 'identification'
