@@ -19,6 +19,7 @@ NODES = {
     'signal_generator': 'emfc_ros.nodes.signal_generator:main',
     'plant_simulator': 'emfc_ros.nodes.plant_simulator:main',
     'recorder': 'emfc_ros.nodes.recorder:main',
+    'identifier': 'emfc_ros.nodes.identifier:main',
 }
 
 # Offline commands for PATH users.
@@ -26,6 +27,7 @@ COMMANDS = {
     'emfc-signal-generator': 'emfc_ros.nodes.signal_generator:main',
     'emfc-plant-simulator': 'emfc_ros.nodes.plant_simulator:main',
     'emfc-recorder': 'emfc_ros.nodes.recorder:main',
+    'emfc-identifier': 'emfc_ros.nodes.identifier:main',
     'emfc-bag-repair': 'emfc_ros.cli.bag_repair:main',
     'emfc-bag-info': 'emfc_ros.cli.bag_info:main',
     'emfc-generate': 'emfc_ros.cli.generate:main',

@@ -37,8 +37,6 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
@@ -59,6 +57,7 @@ from emfc_ros.core.sim.simulator import Simulator
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, diagnostic_status,
     LATCHED_QOS, msg_to_block)
+from emfc_ros.nodes.spin import run_node
 
 DEFAULT_BALANCE = 'balance_default.yaml'
 TIME_MODES = ('owner', 'wall')
@@ -464,18 +463,7 @@ def main(args: Optional[List[str]] = None) -> int:
     int
         Process exit code.
     """
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = PlantSimulatorNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(PlantSimulatorNode, args)
 
 
 if __name__ == '__main__':

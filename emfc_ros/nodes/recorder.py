@@ -38,9 +38,7 @@ from typing import Dict, List, Optional, Tuple
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rcl_interfaces.srv import GetParameters, ListParameters
-import rclpy
 from rclpy.exceptions import ParameterUninitializedException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -56,6 +54,7 @@ from emfc_ros.core.bag.qos import DURABILITY, HISTORY, LIVELINESS, policy_name, 
 from emfc_ros.core.config import unflatten
 from emfc_ros.core.errors import ConfigError
 from emfc_ros.nodes.convert import diagnostic_status, LATCHED_QOS
+from emfc_ros.nodes.spin import run_node
 
 EXCLUDED_TOPICS = ('/rosout', '/parameter_events')
 DESCRIPTION_SUFFIX = 'excitation/description'
@@ -552,7 +551,7 @@ class RecorderNode(Node):
         self._pub_diag.publish(msg)
 
 
-def main(args=None) -> int:
+def main(args: Optional[List[str]] = None) -> int:
     """
     Run the recorder node until shutdown; the bag is closed properly on Ctrl-C.
 
@@ -566,18 +565,7 @@ def main(args=None) -> int:
     int
         Process exit code.
     """
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = RecorderNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(RecorderNode, args)
 
 
 if __name__ == '__main__':

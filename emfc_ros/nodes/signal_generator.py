@@ -25,8 +25,6 @@ from typing import List, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Bool, Float64MultiArray, String, UInt64
@@ -40,6 +38,7 @@ from emfc_ros.core.signals import Experiment, experiment_from_config, load_exper
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, diagnostic_status,
     LATCHED_QOS)
+from emfc_ros.nodes.spin import run_node
 
 DEFAULT_EXPERIMENT = 'identification_trajectory.yaml'
 PACING = ('wall', 'consumer')
@@ -373,7 +372,7 @@ class SignalGeneratorNode(Node):
         self._pub_diag.publish(msg)
 
 
-def main(args=None) -> int:
+def main(args: Optional[List[str]] = None) -> int:
     """
     Run the signal_generator node until shutdown.
 
@@ -387,18 +386,7 @@ def main(args=None) -> int:
     int
         Process exit code.
     """
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = SignalGeneratorNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(SignalGeneratorNode, args)
 
 
 if __name__ == '__main__':

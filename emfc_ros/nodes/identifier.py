@@ -1,0 +1,297 @@
+"""
+The identifier node: identify the balance from a bag, or from live data on request.
+
+Topics (relative to the node namespace): ``measurements`` and ``measurements/description``
+(in, accumulated between ``~/start_accumulating`` and ``~/identify``),
+``excitation/description`` (in, latched: the experiment's section table), ``~/progress``
+(``std_msgs/String``, out: JSON with step, fraction, message), ``~/result``
+(``std_msgs/String``, out, latched: JSON with the output folder, key figures and warnings),
+``/diagnostics``.
+
+Services (``std_srvs/Trigger``): ``~/identify_bag`` (the bag named by the ``bag``
+parameter), ``~/start_accumulating`` (buffer live measurement blocks from now on; start it
+before the experiment), ``~/identify`` (identify what was accumulated). Identification runs
+in a worker thread; a request while one runs is refused with the reason.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+import threading
+import time
+from typing import List, Optional
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+import numpy as np
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from std_msgs.msg import Float64MultiArray, String
+from std_srvs.srv import Trigger
+import yaml
+
+from emfc_ros.core.blocks import Continuity, SequenceTracker
+from emfc_ros.core.errors import BlockError
+from emfc_ros.nodes.convert import (
+    BLOCK_QOS, diagnostic_status, LATCHED_QOS, msg_to_block, msg_to_description)
+from emfc_ros.nodes.spin import run_node
+
+PARAMETERS = {
+    'bag': ('', 'bag folder for ~/identify_bag [path]'),
+    'output_dir': ('identification', 'folder under which each identification writes its '
+                                     'own results folder [path]'),
+    'options_file': ('', 'identification options YAML (a mapping) [path]; empty: defaults'),
+    'max_accumulated_samples': (50_000_000, 'bound on live accumulation [samples]'),
+}
+
+
+class IdentifierNode(Node):
+    """
+    Run the identification pipeline on request and publish where the results are.
+
+    Parameters
+    ----------
+    **kwargs
+        Passed to :class:`rclpy.node.Node`.
+    """
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('identifier', **kwargs)
+        for name, (default, text) in PARAMETERS.items():
+            self.declare_parameter(name, default, ParameterDescriptor(description=text))
+        self._lock = threading.Lock()
+        self._busy = False
+        self._accumulating = False
+        self._chunks: List[np.ndarray] = []
+        self._first_index: Optional[int] = None
+        self._tracker = SequenceTracker()
+        self._names: tuple = ()
+        self._rate = 0.0
+        self._sections: list = []
+        self._malformed = 0
+        self._last_error = ''
+        self._last_result = ''
+        self._runs = 0
+        self._pub_progress = self.create_publisher(String, '~/progress', 10)
+        self._pub_result = self.create_publisher(String, '~/result', LATCHED_QOS)
+        self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.create_subscription(Float64MultiArray, 'measurements', self._on_block, BLOCK_QOS)
+        self.create_subscription(String, 'measurements/description', self._on_description,
+                                 LATCHED_QOS)
+        self.create_subscription(String, 'excitation/description', self._on_experiment,
+                                 LATCHED_QOS)
+        self.create_service(Trigger, '~/identify_bag', self._srv_identify_bag)
+        self.create_service(Trigger, '~/start_accumulating', self._srv_start)
+        self.create_service(Trigger, '~/identify', self._srv_identify)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.create_timer(1.0, self._publish_diagnostics)
+
+    # -- parameters ------------------------------------------------------------------------
+
+    def _on_set_parameters(self, params: List[Parameter]) -> SetParametersResult:
+        for p in params:
+            if p.name in ('bag', 'output_dir', 'options_file') and \
+                    p.type_ != Parameter.Type.STRING:
+                return SetParametersResult(successful=False, reason=f'{p.name} must be a path')
+            if p.name == 'options_file' and p.value:
+                try:
+                    self._read_options(p.value)
+                except ValueError as exc:
+                    return SetParametersResult(successful=False, reason=str(exc))
+            if p.name == 'max_accumulated_samples' and (
+                    p.type_ != Parameter.Type.INTEGER or p.value < 1):
+                return SetParametersResult(successful=False,
+                                           reason='max_accumulated_samples must be >= 1')
+        return SetParametersResult(successful=True)
+
+    @staticmethod
+    def _read_options(path: str) -> dict:
+        try:
+            options = yaml.safe_load(Path(path).read_text()) or {}
+        except (OSError, yaml.YAMLError) as exc:
+            raise ValueError(f'options_file {path}: {exc}') from exc
+        if not isinstance(options, dict):
+            raise ValueError(f'options_file {path} must hold a mapping')
+        return options
+
+    def _options(self) -> dict:
+        path = self.get_parameter('options_file').value
+        return self._read_options(path) if path else {}
+
+    # -- live data -------------------------------------------------------------------------
+
+    def _on_description(self, msg: String) -> None:
+        try:
+            description = msg_to_description(msg)
+        except BlockError as exc:
+            self._malformed += 1
+            self._last_error = str(exc)
+            return
+        self._names = description.channel_names
+        self._rate = description.sample_rate_Hz
+
+    def _on_experiment(self, msg: String) -> None:
+        try:
+            self._sections = list(msg_to_description(msg).extra.get('sections', []))
+        except BlockError as exc:
+            self._malformed += 1
+            self._last_error = str(exc)
+
+    def _on_block(self, msg: Float64MultiArray) -> None:
+        if not self._accumulating:
+            return
+        try:
+            block = msg_to_block(msg, expected_channels=len(self._names) or None)
+        except BlockError as exc:
+            self._malformed += 1
+            self._last_error = str(exc)
+            return
+        kind = self._tracker.observe(block.first_sample_index, block.n_samples, block.epoch)
+        if kind not in (Continuity.FIRST, Continuity.CONTIGUOUS):
+            self._last_error = f'measurement stream {kind.value} at sample ' \
+                               f'{block.first_sample_index}: accumulation stopped'
+            self._accumulating = False
+            return
+        if self._first_index is None:
+            self._first_index = block.first_sample_index
+        self._chunks.append(np.array(block.samples))
+        accumulated = sum(c.shape[1] for c in self._chunks)
+        if accumulated > int(self.get_parameter('max_accumulated_samples').value):
+            self._accumulating = False
+            self._last_error = 'max_accumulated_samples reached: accumulation stopped'
+
+    # -- services --------------------------------------------------------------------------
+
+    def _claim(self) -> Optional[str]:
+        with self._lock:
+            if self._busy:
+                return 'an identification is running; wait for ~/result'
+            self._busy = True
+        return None
+
+    def _srv_start(self, request: Trigger.Request, response: Trigger.Response):
+        self._chunks, self._first_index = [], None
+        self._tracker = SequenceTracker()
+        self._accumulating = True
+        self._last_error = ''
+        response.success = True
+        response.message = 'accumulating measurement blocks; call ~/identify when done'
+        return response
+
+    def _srv_identify(self, request: Trigger.Request, response: Trigger.Response):
+        self._accumulating = False
+        if not self._chunks:
+            response.success, response.message = False, 'nothing accumulated (call ' \
+                '~/start_accumulating before the experiment)'
+            return response
+        if self._first_index != 0:
+            response.success, response.message = False, (
+                f'accumulation began at sample {self._first_index}, not 0: start it before '
+                'the experiment')
+            return response
+        if not self._sections:
+            response.success, response.message = False, \
+                'no section table: excitation/description has not been received'
+            return response
+        busy = self._claim()
+        if busy:
+            response.success, response.message = False, busy
+            return response
+        samples = np.concatenate(self._chunks, axis=1)
+        recording = {name: samples[i] for i, name in enumerate(self._names)}
+        out = self._next_output('live')
+        threading.Thread(target=self._work_arrays, args=(recording, out), daemon=True).start()
+        response.success, response.message = True, f'identifying {samples.shape[1]} samples ' \
+            f'into {out}'
+        return response
+
+    def _srv_identify_bag(self, request: Trigger.Request, response: Trigger.Response):
+        bag = Path(self.get_parameter('bag').value)
+        if not (bag / 'metadata.yaml').is_file():
+            response.success, response.message = False, f'bag {bag} has no metadata.yaml ' \
+                '(set the bag parameter; repair a killed recording with emfc-bag-repair)'
+            return response
+        busy = self._claim()
+        if busy:
+            response.success, response.message = False, busy
+            return response
+        out = self._next_output(bag.name)
+        threading.Thread(target=self._work_bag, args=(bag, out), daemon=True).start()
+        response.success, response.message = True, f'identifying {bag} into {out}'
+        return response
+
+    def _next_output(self, stem: str) -> Path:
+        self._runs += 1
+        name = f'{stem}-{time.strftime("%Y%m%d-%H%M%S")}-{self._runs}'
+        return Path(self.get_parameter('output_dir').value) / name
+
+    # -- work ------------------------------------------------------------------------------
+
+    def _progress(self, step: str, fraction: float, message: str) -> None:
+        self._pub_progress.publish(String(data=json.dumps(
+            {'step': step, 'fraction': fraction, 'message': message})))
+
+    def _work_bag(self, bag: Path, out: Path) -> None:
+        from emfc_ros.core.ident.from_bag import identify_bag
+        self._work(lambda options: identify_bag(bag, options, progress=self._progress)[0], out)
+
+    def _work_arrays(self, recording: dict, out: Path) -> None:
+        from emfc_ros.core.ident import pipeline
+        self._work(lambda options: pipeline.identify(
+            recording, self._sections, options, sample_rate_Hz=self._rate,
+            progress=self._progress), out)
+
+    def _work(self, run, out: Path) -> None:
+        from emfc_ros.core.report import write_report
+        t0 = time.monotonic()
+        try:
+            result = run(self._options())
+            write_report(result, out)
+            doc = {'ok': True, 'output': str(out), 'wall_time_s': time.monotonic() - t0,
+                   'warnings': list(result.warnings)}
+            self.get_logger().info(f'identification written to {out}')
+        except (ValueError, OSError, KeyError) as exc:
+            doc = {'ok': False, 'output': str(out), 'error': str(exc)}
+            self._last_error = str(exc)
+            self.get_logger().error(f'identification failed: {exc}')
+        finally:
+            with self._lock:
+                self._busy = False
+        self._last_result = json.dumps(doc)
+        self._pub_result.publish(String(data=self._last_result))
+
+    def _publish_diagnostics(self) -> None:
+        accumulated = sum(c.shape[1] for c in self._chunks)
+        values = {'busy': self._busy, 'accumulating': self._accumulating,
+                  'accumulated_samples': accumulated, 'malformed_messages': self._malformed,
+                  'runs': self._runs, 'last_error': self._last_error}
+        values.update(self._tracker.counters())
+        level = DiagnosticStatus.WARN if self._last_error else DiagnosticStatus.OK
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [diagnostic_status(f'{self.get_name()}: identification',
+                                        self.get_fully_qualified_name(), level,
+                                        self._last_error or 'ok', values)]
+        self._pub_diag.publish(msg)
+
+
+def main(args: Optional[List[str]] = None) -> int:
+    """
+    Run the identifier node until shutdown.
+
+    Parameters
+    ----------
+    args : list of str, optional
+        Command-line arguments (``--ros-args ...``).
+
+    Returns
+    -------
+    int
+        Process exit code.
+    """
+    return run_node(IdentifierNode, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
