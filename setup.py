@@ -20,6 +20,7 @@ NODES = {
     'plant_simulator': 'emfc_ros.nodes.plant_simulator:main',
     'recorder': 'emfc_ros.nodes.recorder:main',
     'identifier': 'emfc_ros.nodes.identifier:main',
+    'daq_bridge': 'emfc_ros.nodes.daq_bridge:main',
 }
 
 # Offline commands for PATH users.
@@ -28,6 +29,7 @@ COMMANDS = {
     'emfc-plant-simulator': 'emfc_ros.nodes.plant_simulator:main',
     'emfc-recorder': 'emfc_ros.nodes.recorder:main',
     'emfc-identifier': 'emfc_ros.nodes.identifier:main',
+    'emfc-daq-bridge': 'emfc_ros.nodes.daq_bridge:main',
     'emfc-bag-repair': 'emfc_ros.cli.bag_repair:main',
     'emfc-bag-info': 'emfc_ros.cli.bag_info:main',
     'emfc-generate': 'emfc_ros.cli.generate:main',

@@ -8,6 +8,7 @@ from emfc_ros.core.device import (BACKENDS, create_backend, default_device_confi
                                   GeneratorSpec, OutputChannel, SimBackend, UdpBackend)
 from emfc_ros.core.device.backend import from_codes, input_scaling, to_codes
 from emfc_ros.core.device.function_generator import FunctionGenerator
+from emfc_ros.core.device.replay_backend import ReplayBackend
 from emfc_ros.core.signals import Chirp, Prbs, Sine
 from emfc_ros.core.sim.converters import convert_V
 
@@ -35,11 +36,11 @@ def _started(backend, block_size=400, **kwargs):
 
 
 def test_table_picks_backends_by_name_and_refuses_unknown_names():
-    assert BACKENDS == {'sim': SimBackend, 'udp': UdpBackend}
+    assert BACKENDS == {'sim': SimBackend, 'udp': UdpBackend, 'replay': ReplayBackend}
     sim = create_backend('sim', seed=1)
     assert isinstance(sim, SimBackend) and isinstance(sim, DeviceBackend)
-    with pytest.raises(DeviceConfigError, match="'replay'"):
-        create_backend('replay')
+    with pytest.raises(DeviceConfigError, match="'fpga'"):
+        create_backend('fpga')
 
 
 def test_sim_backend_returns_contiguous_blocks_of_the_measured_channels(backend):
@@ -177,7 +178,7 @@ def test_backend_and_configuration_from_a_mapping_name_bad_keys():
     custom = device_config_from_mapping({'inputs': ['a_V'], 'input_units': ['V'],
                                          'input_scales': [1e-3], 'input_offsets': [0.5]})
     assert custom.inputs[0].scale == 1e-3 and custom.inputs[0].offset == 0.5
-    for cfg, key in (({'backend': 'replay'}, 'backend'), ({'blocksize': 5}, 'blocksize'),
+    for cfg, key in (({'backend': 'fpga'}, 'backend'), ({'blocksize': 5}, 'blocksize'),
                      ({'output_safe_V': [0.0]}, 'output_safe_V'),
                      ({'block_size': 0}, 'block_size'),
                      ({'backend': 'udp', 'udp': {'port': 1}}, 'udp.port'),

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from emfc_ros.nodes import plant_simulator, signal_generator
+from emfc_ros.nodes import daq_bridge, plant_simulator, signal_generator
 
 REPO = Path(__file__).resolve().parents[2]
 LAUNCH_FILES = sorted((REPO / 'launch').glob('*.launch.py'))
@@ -19,7 +19,8 @@ WRAPPERS = {p.name for p in (REPO / 'lib_wrappers').iterdir()}
 # Parameters every rclpy node has, plus each node's own.
 COMMON = {'use_sim_time'}
 NODE_PARAMETERS = {'signal_generator': set(signal_generator.PARAMETERS) | COMMON,
-                   'plant_simulator': set(plant_simulator.PARAMETERS) | COMMON}
+                   'plant_simulator': set(plant_simulator.PARAMETERS) | COMMON,
+                   'daq_bridge': set(daq_bridge.PARAMETERS) | COMMON}
 
 
 def _node_calls(tree):

@@ -18,7 +18,7 @@ import pytest
 import ros_harness
 
 REPO = Path(__file__).resolve().parents[2]
-NODES = ['signal_generator', 'plant_simulator', 'recorder', 'identifier']
+NODES = ['signal_generator', 'plant_simulator', 'recorder', 'identifier', 'daq_bridge']
 IGNORE = shutil.ignore_patterns('.venv', 'build', 'install', 'log', '.git', '__pycache__',
                                 '*.egg-info', 'out', '.pytest_cache', '.hypothesis', 'bench')
 

@@ -384,9 +384,10 @@ class DeviceBackend(Protocol):
 # The back-ends import this module's dataclasses, so they are imported after them.
 from emfc_ros.core.device.sim_backend import SimBackend  # noqa: E402,I100,I202
 from emfc_ros.core.device.udp_backend import UdpBackend  # noqa: E402,I100
+from emfc_ros.core.device.replay_backend import ReplayBackend  # noqa: E402,I100,I202
 
 #: Back-ends by configuration name.
-BACKENDS: Dict[str, Any] = {'sim': SimBackend, 'udp': UdpBackend}
+BACKENDS: Dict[str, Any] = {'sim': SimBackend, 'udp': UdpBackend, 'replay': ReplayBackend}
 
 
 def create_backend(name: str, **options: Any) -> DeviceBackend:

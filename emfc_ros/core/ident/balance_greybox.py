@@ -1,0 +1,422 @@
+"""
+Grey-box model of the balance for :func:`~emfc_ros.core.ident.greybox.fit_greybox`.
+
+The model is the plant simulator itself (:class:`~emfc_ros.core.sim.Simulator`, numba kernel)
+with noise and quantisation switched off: the recorded setpoint voltages (as applied by the DAC,
+so already quantised and exactly known) go through the amplifier, motor and load-changer
+characteristics and the nonlinear two-beam mechanics to the lever-end position, including the
+sensor's range clipping. Setpoints rather than measured currents are the inputs because they
+carry no measurement noise (the current monitors add ADC quantisation, an errors-in-variables
+problem); the characteristics come from the configuration (or the static fits).
+
+The whole record is simulated once per parameter set, starting at rest under the first
+setpoints, and each section's simulate call returns its slice: the sections then start from the
+state the previous sections left, as in the experiment. Sections are recognised because their
+input arrays are views into the recorded setpoints (as :meth:`BalanceGreyboxModel.sections`
+builds them); any other input array is simulated on its own, from rest.
+"""
+
+from __future__ import annotations
+
+from dataclasses import fields
+from typing import Dict, List, Mapping, Optional, Sequence, Tuple
+
+import numpy as np
+
+from emfc_ros.core.ident.greybox import DataSection, ParameterSpec
+from emfc_ros.core.model.operating_point import rest_position
+from emfc_ros.core.model.parameters import BalanceParameters, MechanicalParameters
+from emfc_ros.core.sim import Simulator
+
+#: Default free parameters (fields of MechanicalParameters).
+DEFAULT_FREE = ('c1_Nm_per_rad', 'd1_Nms_per_rad', 'c2_Nm_per_rad', 'd2_Nms_per_rad', 'F_off_N')
+
+#: Units of the mechanical parameters by name suffix (longest first).
+_UNITS = (('_Nms_per_rad', 'N m s/rad'), ('_Nm_per_rad', 'N m/rad'), ('_m_per_s2', 'm/s^2'),
+          ('_kgm2', 'kg m^2'), ('_kg', 'kg'), ('_N', 'N'), ('_m', 'm'))
+
+#: Row of the position channel in the simulator output.
+_POSITION = 'position_m'
+
+
+def mechanical_names() -> Tuple[str, ...]:
+    """
+    Names of the parameters the grey-box model accepts (all mechanical parameters).
+
+    Returns
+    -------
+    tuple of str
+        Field names of :class:`MechanicalParameters`, units in the names.
+    """
+    return tuple(f.name for f in fields(MechanicalParameters))
+
+
+def unit_of(name: str) -> str:
+    """
+    Unit of a mechanical parameter from the suffix of its name.
+
+    Parameters
+    ----------
+    name : str
+        Field name of :class:`MechanicalParameters`.
+
+    Returns
+    -------
+    str
+        The SI unit ('' if unknown).
+    """
+    for suffix, unit in _UNITS:
+        if name.endswith(suffix):
+            return unit
+    return ''
+
+
+def rest_state(params: BalanceParameters, setpoints_V: Sequence[float], load_mass_kg: float,
+               load_changer_coupled: bool) -> np.ndarray:
+    """
+    State of rest of the open-loop balance under constant setpoints (no stops).
+
+    Parameters
+    ----------
+    params : BalanceParameters
+        The balance.
+    setpoints_V : sequence of float
+        Coil and load-changer setpoints [V].
+    load_mass_kg : float
+        Mass on the pan [kg].
+    load_changer_coupled : bool
+        Whether the load changer's moving mass rides on the pan.
+
+    Returns
+    -------
+    ndarray, shape (4,)
+        ``[q1, q2, 0, 0]`` [rad, rad/s].
+    """
+    i_coil = float(params.coil_amplifier.current_A(float(setpoints_V[0])))
+    i_lc = float(params.load_changer_amplifier.current_A(float(setpoints_V[1])))
+    f_pan = float(params.load_changer.force_N(i_lc))
+    y = 0.0
+    op = None
+    for _ in range(3):        # the motor coefficient depends (weakly) on the position
+        f_coil = float(params.motor.force_N(i_coil, y))
+        op = rest_position(params.mechanics, f_coil, load_mass_kg, load_changer_coupled,
+                           F_p_N=f_pan)
+        y = op.y_m
+    return op.x
+
+
+class BalanceGreyboxModel:
+    """
+    The recorded setpoints and the simulation of the balance model over them.
+
+    Parameters
+    ----------
+    params : BalanceParameters
+        The model's balance: characteristics, converters and the start values of the mechanics.
+    sample_rate_Hz : float
+        Sample rate of the recording [Hz].
+    setpoints_V : ndarray, shape (n, 2)
+        Coil and load-changer setpoints as applied [V], one row per sample.
+    load_mass_kg : float
+        Mass on the pan during the experiment [kg].
+    load_changer_coupled : bool
+        Whether the load changer's moving mass rode on the pan.
+    hold : {'zoh', 'foh'}
+        Hold of the setpoints in the simulation (as the DAC of the experiment).
+
+    Attributes
+    ----------
+    n_simulations : int
+        Full-record simulations run so far.
+    """
+
+    def __init__(self, params: BalanceParameters, sample_rate_Hz: float,
+                 setpoints_V: np.ndarray, load_mass_kg: float = 0.0,
+                 load_changer_coupled: bool = False, hold: str = 'zoh') -> None:
+        u = np.ascontiguousarray(setpoints_V, dtype=float)
+        if u.ndim != 2 or u.shape[1] != 2 or u.shape[0] < 2:
+            raise ValueError(f'setpoints_V must have shape (n >= 2, 2), got {u.shape}')
+        self.params = params
+        self.sample_rate_Hz = float(sample_rate_Hz)
+        self.setpoints_V = u
+        self.load_mass_kg = float(load_mass_kg)
+        self.load_changer_coupled = bool(load_changer_coupled)
+        self.hold = hold
+        self.n_simulations = 0
+        self._cache_key: Optional[tuple] = None
+        self._cache: Optional[np.ndarray] = None
+
+    def balance(self, values: Mapping[str, float]) -> BalanceParameters:
+        """
+        The model's parameters with some mechanical parameters replaced.
+
+        Parameters
+        ----------
+        values : mapping of str to float
+            Mechanical parameter names and values.
+
+        Returns
+        -------
+        BalanceParameters
+            The modified copy.
+        """
+        return self.params.with_mechanics(**{k: float(v) for k, v in values.items()})
+
+    def simulate_setpoints(self, values: Mapping[str, float], setpoints_V: np.ndarray,
+                           ) -> np.ndarray:
+        """
+        Simulate the position for setpoints, starting at rest under the first ones.
+
+        Parameters
+        ----------
+        values : mapping of str to float
+            Mechanical parameters (others from :attr:`params`).
+        setpoints_V : ndarray, shape (n, 2)
+            Coil and load-changer setpoints [V].
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            Lever-end position [m] as the sensor reports it (range clipping, no noise).
+        """
+        params = self.balance(values)
+        u = np.asarray(setpoints_V, dtype=float)
+        x0 = rest_state(params, u[0], self.load_mass_kg, self.load_changer_coupled)
+        sim = Simulator(params, self.sample_rate_Hz, 0, hold=self.hold, noise=False,
+                        quantisation=False, reference_channels=False,
+                        load_mass_kg=self.load_mass_kg,
+                        load_changer_coupled=self.load_changer_coupled, x0=x0,
+                        initial_setpoints_V=u[0])
+        out = sim.step_block(np.ascontiguousarray(u.T))
+        return out[sim.channel_names.index(_POSITION)]
+
+    def simulate_record(self, values: Mapping[str, float]) -> np.ndarray:
+        """
+        Simulate the whole record (cached for the last parameter set).
+
+        Parameters
+        ----------
+        values : mapping of str to float
+            Mechanical parameters.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            Position [m].
+        """
+        key = tuple(sorted((k, float(v)) for k, v in values.items()))
+        if key != self._cache_key:
+            self._cache = self.simulate_setpoints(values, self.setpoints_V)
+            self._cache_key = key
+            self.n_simulations += 1
+        return self._cache
+
+    def offset(self, inputs: np.ndarray) -> Optional[int]:
+        """
+        First sample of a section's inputs in the recording.
+
+        Parameters
+        ----------
+        inputs : ndarray
+            Setpoints of a section.
+
+        Returns
+        -------
+        int or None
+            The index, or None when the array is not a view into the recorded setpoints.
+        """
+        base = self.setpoints_V
+        if not (isinstance(inputs, np.ndarray) and inputs.ndim == 2 and inputs.shape[1] == 2
+                and inputs.strides == base.strides and np.shares_memory(inputs, base)):
+            return None
+        delta = inputs.__array_interface__['data'][0] - base.__array_interface__['data'][0]
+        if delta % base.strides[0]:
+            return None
+        first = delta // base.strides[0]
+        if first < 0 or first + inputs.shape[0] > base.shape[0]:
+            return None
+        return int(first)
+
+    def simulate(self, values: Mapping[str, float], inputs: np.ndarray) -> np.ndarray:
+        """
+        Simulate one data section: the callable given to :func:`fit_greybox`.
+
+        Parameters
+        ----------
+        values : mapping of str to float
+            Mechanical parameters.
+        inputs : ndarray, shape (n, 2)
+            Setpoints [V]: a view into the recording (then the slice of the full-record
+            simulation is returned) or any other array (simulated on its own from rest).
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            Position [m].
+        """
+        first = self.offset(inputs)
+        if first is None:
+            return self.simulate_setpoints(values, inputs)
+        return self.simulate_record(values)[first:first + inputs.shape[0]]
+
+    def sections(self, position_m: np.ndarray, spans: Sequence[Tuple[str, int, int]],
+                 weights: Optional[Mapping[str, float]] = None) -> List[DataSection]:
+        """
+        Data sections whose inputs are views into the recorded setpoints.
+
+        Parameters
+        ----------
+        position_m : ndarray, shape (n,)
+            Measured position of the whole record [m].
+        spans : sequence of (name, first_sample_index, n_samples)
+            The sections to fit.
+        weights : mapping of str to float, optional
+            Weight per section name (default 1).
+
+        Returns
+        -------
+        list of DataSection
+            One per span.
+        """
+        y = np.asarray(position_m, dtype=float)
+        out = []
+        for name, first, n in spans:
+            w = float((weights or {}).get(name, 1.0))
+            out.append(DataSection(name, self.setpoints_V[first:first + n],
+                                   y[first:first + n], w))
+        return out
+
+
+def parameter_specs(params: MechanicalParameters, free: Sequence[str],
+                    relative_bounds: Tuple[float, float] = (0.2, 5.0),
+                    force_bound_N: float = 0.05, force_scale_N: float = 1.0e-3,
+                    initial: Optional[Mapping[str, float]] = None) -> List[ParameterSpec]:
+    """
+    Parameter specs of the grey-box fit: the free ones with bounds, all others fixed.
+
+    Only the free parameters and ``F_off_N`` are passed to the model; the fixed mechanics stay
+    in the model's :class:`BalanceParameters`.
+
+    Parameters
+    ----------
+    params : MechanicalParameters
+        Start values.
+    free : sequence of str
+        Names of the free parameters (fields of :class:`MechanicalParameters`).
+    relative_bounds : (float, float)
+        Bounds of a free non-force parameter as multiples of its start value (a start value of
+        0 gets bounds ``[0, 1]`` in its unit).
+    force_bound_N : float
+        ``F_off_N`` is bounded to ``+/- force_bound_N`` [N].
+    force_scale_N : float
+        Scale of ``F_off_N`` for the optimisers [N].
+    initial : mapping of str to float, optional
+        Start values that override ``params``.
+
+    Returns
+    -------
+    list of ParameterSpec
+        One per free parameter.
+
+    Raises
+    ------
+    ValueError
+        If a name is not a mechanical parameter.
+    """
+    names = mechanical_names()
+    unknown = [n for n in list(free) + list(initial or {}) if n not in names]
+    if unknown:
+        raise ValueError(f'unknown mechanical parameters {unknown}; allowed: {list(names)}')
+    specs = []
+    for name in free:
+        v = float((initial or {}).get(name, getattr(params, name)))
+        unit = unit_of(name)
+        if name == 'F_off_N':
+            lo, hi = -abs(force_bound_N), abs(force_bound_N)
+            v = min(max(v, lo), hi)
+            specs.append(ParameterSpec(name, v, lo, hi, True, float(force_scale_N), 'N'))
+        elif v == 0.0:
+            specs.append(ParameterSpec(name, 0.0, 0.0, 1.0, True, 1.0, unit))
+        else:
+            lo, hi = sorted((relative_bounds[0] * v, relative_bounds[1] * v))
+            specs.append(ParameterSpec(name, v, lo, hi, True, abs(v), unit))
+    return specs
+
+
+def values_of(specs: Sequence[ParameterSpec]) -> Dict[str, float]:
+    """
+    Start values of specs as a dict.
+
+    Parameters
+    ----------
+    specs : sequence of ParameterSpec
+        The specs.
+
+    Returns
+    -------
+    dict of str to float
+        Name to initial value.
+    """
+    return {s.name: float(s.initial) for s in specs}
+
+
+def match_modes(params: BalanceParameters, modes: Sequence[Tuple[float, float]],
+                load_mass_kg: float = 0.0, load_changer_coupled: bool = False,
+                free: Sequence[str] = DEFAULT_FREE) -> Dict[str, float]:
+    """
+    Stiffnesses and dampings whose linearised model has the given two modes.
+
+    A start for the grey-box fit from the FRF's modal fit: ``c1``/``c2`` (when free) are
+    solved so that the two pole pairs have the measured natural frequencies, then ``d1``/``d2``
+    for the damping ratios, by least squares on the logarithms.
+
+    Parameters
+    ----------
+    params : BalanceParameters
+        The balance (other parameters fixed at these values).
+    modes : sequence of (float, float)
+        ``(frequency_Hz, damping_ratio)`` of the low and the high mode.
+    load_mass_kg : float
+        Mass on the pan [kg].
+    load_changer_coupled : bool
+        Whether the load changer's moving mass rides on the pan.
+    free : sequence of str
+        Free parameters; only the free ones among the four are changed.
+
+    Returns
+    -------
+    dict of str to float
+        The changed parameters (empty when none of the four is free or it fails).
+    """
+    from scipy import optimize
+
+    from emfc_ros.core.model.linear import linearise
+    from emfc_ros.core.model.load import loaded
+
+    if len(modes) != 2:
+        return {}
+    target = np.array([[m[0], m[1]] for m in sorted(modes)], dtype=float)
+    groups = (('c1_Nm_per_rad', 'c2_Nm_per_rad'), ('d1_Nms_per_rad', 'd2_Nms_per_rad'))
+    values: Dict[str, float] = {}
+    for column, names in enumerate(groups):
+        names = [n for n in names if n in free and getattr(params.mechanics, n) > 0.0]
+        if not names:
+            continue
+
+        def residual(logs: np.ndarray) -> np.ndarray:
+            trial = dict(values, **{n: float(np.exp(v)) for n, v in zip(names, logs)})
+            mech = loaded(params.with_mechanics(**trial).mechanics, load_mass_kg,
+                          load_changer_coupled)
+            poles = [p for p in linearise(mech).poles() if not p.is_real]
+            got = sorted({(round(p.frequency_Hz, 9), p.damping_ratio) for p in poles})
+            if len(got) != 2:
+                return np.full(2, 1e3)
+            return np.log(np.array(got)[:, column] / target[:, column])
+
+        x0 = np.log([getattr(params.mechanics, n) for n in names])
+        try:
+            res = optimize.least_squares(residual, x0, xtol=1e-12, ftol=1e-12)
+        except (ValueError, np.linalg.LinAlgError):
+            return {}
+        values.update({n: float(np.exp(v)) for n, v in zip(names, res.x)})
+    return values

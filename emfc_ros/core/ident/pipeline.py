@@ -1,0 +1,927 @@
+"""
+The identification pipeline: a recorded experiment in, identified balance out (no ROS).
+
+``identify(recording, experiment_sections, config)`` runs, each step optional by configuration
+(:mod:`emfc_ros.core.ident.pipeline_config`):
+
+(a) FRFs of the lever-end position per coil force and per pan force on the single-input
+    sections, the two-input solve on the simultaneous sections (local polynomial method by
+    default, with coherence and standard deviation), the DAC hold removed, and the response at
+    selected frequencies as the paper reports it;
+(b) transfer-function fits with order selection: resonances, anti-resonances, damping, each
+    with its standard deviation;
+(c) static characteristics of staircase sections: ``I(U)`` of both amplifiers and the load
+    changer's ``F(I)`` in the paper's form;
+(d) the grey-box fit of the two-beam model by simulation error over the sections
+    (:mod:`emfc_ros.core.ident.balance_greybox`): parameters, standard errors, correlations,
+    fit % per section, residual tests, and the linearisation of the fitted model.
+
+Progress goes to an optional ``progress(step, fraction, message)`` callable. The result
+serialises to plain data with :meth:`IdentificationResult.to_dict` (every key with its unit).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+import math
+import time
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
+import warnings
+
+import numpy as np
+
+from emfc_ros.core.ident.balance_greybox import (BalanceGreyboxModel, match_modes,
+                                                 parameter_specs, values_of)
+from emfc_ros.core.ident.errors import IdentificationError
+from emfc_ros.core.ident.frf import estimate_frf, FrequencyResponseData
+from emfc_ros.core.ident.greybox import fit_greybox, GreyboxResult
+from emfc_ros.core.ident.local_polynomial import local_polynomial_frf
+from emfc_ros.core.ident.mimo import estimate_two_input_frf
+from emfc_ros.core.ident.pattern_search import PatternSearchOptions
+from emfc_ros.core.ident.pipeline_config import IdentificationConfig
+from emfc_ros.core.ident.static_fit import fit_polynomial, PolynomialFit
+from emfc_ros.core.ident.tf_fit import OrderSelection, select_order
+from emfc_ros.core.model.linear import linearise, LinearModel, Root
+from emfc_ros.core.model.load import loaded
+
+Progress = Callable[[str, float, str], None]
+
+#: Channels the pipeline needs.
+REQUIRED_CHANNELS = ('coil_setpoint_V', 'load_changer_setpoint_V', 'coil_current_A',
+                     'load_changer_current_A', 'position_m')
+
+#: Grey-box sections below this fit [%] raise a warning.
+FIT_WARNING_PERCENT = 90.0
+#: Residual whiteness fractions below this raise a warning.
+WHITENESS_WARNING = 0.9
+
+#: Smallest FRF std used as a fit weight, relative to |H|: the hold compensation and the
+#: LPM's local polynomials are good to about 0.1 %, so a noise-free record must not claim more
+#: (order selection would otherwise add poles to fit those systematic errors).
+STD_FLOOR = 1.0e-3
+
+INPUT_NAMES = {'coil': 'coil force', 'pan': 'pan force'}
+
+
+@dataclass(frozen=True)
+class Span:
+    """
+    A section of the recording.
+
+    Attributes
+    ----------
+    name : str
+        Section name.
+    first_sample_index : int
+        First sample (index into the recording's arrays).
+    n_samples : int
+        Length.
+    """
+
+    name: str
+    first_sample_index: int
+    n_samples: int
+
+    @property
+    def slice(self) -> slice:
+        """The section as a slice of the recording."""
+        return slice(self.first_sample_index, self.first_sample_index + self.n_samples)
+
+
+@dataclass
+class FrfResult:
+    """
+    FRF of one section and input, with its fits.
+
+    Attributes
+    ----------
+    section : str
+        Section name.
+    input : str
+        ``'coil'`` or ``'pan'`` (force input; output the lever-end position).
+    frd : FrequencyResponseData
+        The measured response [m/N] with coherence and std (hold removed).
+    two_input : bool
+        From the joint solve of a simultaneous section.
+    selected : FrequencyResponseData or None
+        Response at the selected frequencies (LPM at the nearest DFT line).
+    fit : OrderSelection or None
+        Transfer-function fits and the chosen one.
+    model_response : ndarray or None
+        Response of the grey-box model's linearisation at ``frd.frequency_Hz`` [m/N].
+    """
+
+    section: str
+    input: str
+    frd: FrequencyResponseData
+    two_input: bool = False
+    selected: Optional[FrequencyResponseData] = None
+    fit: Optional[OrderSelection] = None
+    model_response: Optional[np.ndarray] = None
+
+    @property
+    def name(self) -> str:
+        """Identifier ``<section>.<input>``."""
+        return f'{self.section}.{self.input}'
+
+
+@dataclass
+class StaticResult:
+    """
+    Static characteristics from staircase sections.
+
+    Attributes
+    ----------
+    fits : dict of str to PolynomialFit
+        ``coil_amplifier``, ``load_changer_amplifier``, ``load_changer`` (as available).
+    n_plateaus : dict of str to int
+        Plateaus behind each fit.
+    """
+
+    fits: Dict[str, PolynomialFit] = field(default_factory=dict)
+    n_plateaus: Dict[str, int] = field(default_factory=dict)
+
+
+@dataclass
+class BalanceGreyboxResult:
+    """
+    The grey-box fit of the balance model.
+
+    Attributes
+    ----------
+    fit : GreyboxResult
+        Parameters, standard errors, correlation, section fits, counts and time.
+    initial : dict of str to float
+        Start values of the free parameters.
+    linear_model : LinearModel
+        Linearisation of the fitted model in the experiment's configuration.
+    time_s : ndarray-valued dict
+        Per section: time from the section start [s].
+    measured_m, simulated_m : dict of str to ndarray
+        Per section: measured and simulated position [m].
+    """
+
+    fit: GreyboxResult
+    initial: Dict[str, float]
+    linear_model: LinearModel
+    time_s: Dict[str, np.ndarray] = field(default_factory=dict)
+    measured_m: Dict[str, np.ndarray] = field(default_factory=dict)
+    simulated_m: Dict[str, np.ndarray] = field(default_factory=dict)
+
+
+@dataclass
+class IdentificationResult:
+    """
+    Everything the pipeline identified.
+
+    Attributes
+    ----------
+    sample_rate_Hz : float
+        Sample rate of the recording [Hz].
+    n_samples : int
+        Samples in the recording.
+    sections : list of Span
+        The section table.
+    config : IdentificationConfig
+        The configuration used.
+    frfs : list of FrfResult
+        Step (a) and (b).
+    static : StaticResult or None
+        Step (c).
+    greybox : BalanceGreyboxResult or None
+        Step (d).
+    warnings : list of str
+        What the user should know (skipped steps, poor fits, failed residual tests).
+    timings_s : dict of str to float
+        Wall time per step [s].
+    """
+
+    sample_rate_Hz: float
+    n_samples: int
+    sections: List[Span]
+    config: IdentificationConfig
+    frfs: List[FrfResult] = field(default_factory=list)
+    static: Optional[StaticResult] = None
+    greybox: Optional[BalanceGreyboxResult] = None
+    warnings: List[str] = field(default_factory=list)
+    timings_s: Dict[str, float] = field(default_factory=dict)
+
+    def frf(self, section: str, input: str) -> FrfResult:
+        """
+        Look up the FRF result of a section and input.
+
+        Parameters
+        ----------
+        section : str
+            Section name.
+        input : str
+            ``'coil'`` or ``'pan'``.
+
+        Returns
+        -------
+        FrfResult
+            The result.
+
+        Raises
+        ------
+        KeyError
+            If there is none.
+        """
+        for r in self.frfs:
+            if r.section == section and r.input == input:
+                return r
+        raise KeyError(f'no FRF for section {section!r}, input {input!r}')
+
+    def to_dict(self) -> dict:
+        """
+        Plain data for YAML or JSON; every key carries its unit.
+
+        Returns
+        -------
+        dict
+            Nested dicts, lists, floats, ints, strings and booleans.
+        """
+        return _to_plain({
+            'sample_rate_Hz': self.sample_rate_Hz,
+            'n_samples': self.n_samples,
+            'duration_s': self.n_samples / self.sample_rate_Hz,
+            'sections': [{'name': s.name, 'first_sample_index': s.first_sample_index,
+                          'n_samples': s.n_samples} for s in self.sections],
+            'configuration': {'load_mass_kg': self.config.load_mass_kg,
+                              'load_changer_coupled': self.config.load_changer_coupled},
+            'frequency_responses': [_frf_dict(r) for r in self.frfs],
+            'static_characteristics': _static_dict(self.static),
+            'greybox': _greybox_dict(self.greybox),
+            'warnings': list(self.warnings),
+            'timings_s': dict(self.timings_s),
+            'pipeline_config': self.config.to_dict(),
+        })
+
+
+def identify(recording: Any, experiment_sections: Sequence[Any],
+             config: Optional[Any] = None, *, sample_rate_Hz: Optional[float] = None,
+             progress: Optional[Progress] = None) -> IdentificationResult:
+    """
+    Identify the balance from a recorded experiment.
+
+    Parameters
+    ----------
+    recording : mapping or object
+        Channels as 1-D arrays on one sample clock, by name (at least ``coil_setpoint_V``,
+        ``load_changer_setpoint_V``, ``coil_current_A``, ``load_changer_current_A``,
+        ``position_m``; optionally ``coil_force_N``, ``load_changer_force_N``,
+        ``pan_force_N``): a mapping (which may also hold ``sample_rate_Hz``) or an object with
+        ``channels`` and ``sample_rate_Hz`` attributes.
+    experiment_sections : sequence
+        The section table: ``(name, first_sample_index, n_samples)`` tuples, mappings with
+        those keys, or objects with those attributes.
+    config : IdentificationConfig or mapping, optional
+        The configuration (a mapping is validated with
+        :meth:`IdentificationConfig.from_mapping`); default all defaults.
+    sample_rate_Hz : float, optional
+        Sample rate [Hz] when the recording does not carry it.
+    progress : callable, optional
+        Called as ``progress(step, fraction, message)`` with ``fraction`` in [0, 1].
+
+    Returns
+    -------
+    IdentificationResult
+        The results, warnings and timings.
+
+    Raises
+    ------
+    IdentificationError
+        If channels are missing or inconsistent, or the section table does not fit.
+    ConfigError
+        If the configuration is invalid.
+    """
+    cfg = config if isinstance(config, IdentificationConfig) else \
+        IdentificationConfig.from_mapping(config)
+    channels, fs = _channels(recording, sample_rate_Hz)
+    n = channels['position_m'].size
+    spans = _spans(experiment_sections, n)
+    report = progress if progress is not None else (lambda step, fraction, message: None)
+    result = IdentificationResult(fs, n, spans, cfg)
+    by_name = {s.name: s for s in spans}
+    forces = _forces(channels, cfg)
+
+    if cfg.frf.enabled:
+        start = time.perf_counter()
+        report('frf', 0.0, 'frequency responses')
+        _frf_step(result, channels, forces, by_name, report)
+        result.timings_s['frf'] = time.perf_counter() - start
+        report('frf', 1.0, f'{len(result.frfs)} frequency responses')
+    if cfg.tf_fit.enabled and result.frfs:
+        start = time.perf_counter()
+        _tf_step(result, report)
+        result.timings_s['tf_fit'] = time.perf_counter() - start
+    if cfg.static.enabled:
+        start = time.perf_counter()
+        _static_step(result, channels, forces, spans)
+        result.timings_s['static'] = time.perf_counter() - start
+    if cfg.greybox.enabled:
+        start = time.perf_counter()
+        _greybox_step(result, channels, spans, report)
+        result.timings_s['greybox'] = time.perf_counter() - start
+    report('done', 1.0, f'identification finished with {len(result.warnings)} warning(s)')
+    return result
+
+
+# ---------------------------------------------------------------- inputs
+
+
+def _channels(recording: Any, sample_rate_Hz: Optional[float]
+              ) -> Tuple[Dict[str, np.ndarray], float]:
+    if hasattr(recording, 'channels') and not isinstance(recording, Mapping):
+        source = dict(recording.channels)
+        rate = getattr(recording, 'sample_rate_Hz', None)
+    elif isinstance(recording, Mapping):
+        source = dict(recording)
+        rate = source.pop('sample_rate_Hz', None)
+    else:
+        raise IdentificationError(f'recording must be a mapping of channel arrays or have '
+                                  f'.channels and .sample_rate_Hz, got {type(recording)!r}')
+    if sample_rate_Hz is not None:
+        rate = sample_rate_Hz
+    try:
+        fs = float(rate)
+    except (TypeError, ValueError):
+        fs = float('nan')
+    if not (math.isfinite(fs) and fs > 0.0):
+        raise IdentificationError(f'sample_rate_Hz must be a positive number, got {rate!r}')
+    missing = [c for c in REQUIRED_CHANNELS if c not in source]
+    if missing:
+        raise IdentificationError(f'recording lacks the channels {missing}; it has '
+                                  f'{sorted(source)}')
+    out = {}
+    n = None
+    for name, values in source.items():
+        arr = np.asarray(values, dtype=float)
+        if arr.ndim != 1:
+            raise IdentificationError(f'channel {name!r} must be 1-D, got shape {arr.shape}')
+        if n is None:
+            n = arr.size
+        if arr.size != n:
+            raise IdentificationError(f'channel {name!r} has {arr.size} samples, others {n}')
+        if not np.all(np.isfinite(arr)):
+            raise IdentificationError(f'channel {name!r} holds NaN or infinite samples')
+        out[name] = arr
+    return out, fs
+
+
+def _spans(table: Sequence[Any], n: int) -> List[Span]:
+    spans = []
+    for row in table:
+        if isinstance(row, Mapping):
+            name, first, count = row['name'], row['first_sample_index'], row['n_samples']
+        elif hasattr(row, 'first_sample_index'):
+            name, first, count = row.name, row.first_sample_index, row.n_samples
+        else:
+            name, first, count = row
+        first, count = int(first), int(count)
+        if first < 0 or count < 2 or first + count > n:
+            raise IdentificationError(f'section {name!r} [{first}, {first + count}) does not '
+                                      f'fit the recording of {n} samples')
+        spans.append(Span(str(name), first, count))
+    if len({s.name for s in spans}) != len(spans):
+        raise IdentificationError('section names must be distinct')
+    return spans
+
+
+def _forces(channels: Mapping[str, np.ndarray], cfg: IdentificationConfig
+            ) -> Dict[str, np.ndarray]:
+    bal = cfg.balance
+    coil = channels.get('coil_force_N')
+    if coil is None:
+        coil = np.asarray(bal.motor.force_N(channels['coil_current_A'], channels['position_m']),
+                          dtype=float)
+    pan = channels.get('load_changer_force_N')
+    if pan is None:
+        pan = np.asarray(bal.load_changer.force_N(channels['load_changer_current_A']),
+                         dtype=float)
+    return {'coil': coil, 'pan': pan}
+
+
+# ---------------------------------------------------------------- step (a)
+
+
+def hold_factor(frequency_Hz: np.ndarray, sample_rate_Hz: float, hold: str) -> np.ndarray:
+    """
+    Frequency response of the DAC hold seen between sampled force and sampled position.
+
+    Parameters
+    ----------
+    frequency_Hz : ndarray
+        Frequencies [Hz].
+    sample_rate_Hz : float
+        Sample rate [Hz].
+    hold : {'zoh', 'foh', 'none'}
+        Zero-order hold (half-sample delay and sinc), first-order hold with one sample of
+        delay (one sample delay and sinc squared) or none (1).
+
+    Returns
+    -------
+    ndarray
+        Complex factor; divide a measured response by it to compare with the continuous model.
+    """
+    x = np.asarray(frequency_Hz, dtype=float) / float(sample_rate_Hz)
+    if hold == 'zoh':
+        return np.exp(-1j * np.pi * x) * np.sinc(x)
+    if hold == 'foh':
+        return np.exp(-2j * np.pi * x) * np.sinc(x) ** 2
+    return np.ones_like(x, dtype=complex)
+
+
+def _compensate(frd: FrequencyResponseData, fs: float, hold: str) -> FrequencyResponseData:
+    factor = hold_factor(frd.frequency_Hz, fs, hold)
+    details = dict(frd.details, hold_compensation=hold)
+    return FrequencyResponseData(frd.frequency_Hz, frd.response / factor, frd.coherence,
+                                 frd.std / np.abs(factor), frd.n_averages, frd.estimator,
+                                 frd.input_unit, frd.output_unit, details)
+
+
+def _frf_step(result: IdentificationResult, channels: Mapping[str, np.ndarray],
+              forces: Mapping[str, np.ndarray], by_name: Mapping[str, Span],
+              report: Progress) -> None:
+    cfg = result.config.frf
+    fs = result.sample_rate_Hz
+    y = channels['position_m']
+    jobs = [(name, 'coil') for name in cfg.coil_sections] + \
+        [(name, 'pan') for name in cfg.pan_sections] + \
+        [(name, 'both') for name in cfg.two_input_sections]
+    for count, (name, which) in enumerate(jobs):
+        span = by_name.get(name)
+        if span is None:
+            result.warnings.append(f'frf: section {name!r} is not in the recording; skipped')
+            continue
+        report('frf', count / max(len(jobs), 1), f'FRF of section {name!r}')
+        inputs = ['coil', 'pan'] if which == 'both' else [which]
+        sl = span.slice
+        try:
+            frds = _estimate(cfg, [forces[i][sl] for i in inputs], y[sl], fs)
+        except IdentificationError as exc:
+            result.warnings.append(f'frf: section {name!r}: {exc}')
+            continue
+        for inp, frd in zip(inputs, frds):
+            frd = _compensate(frd, fs, cfg.hold_compensation)
+            r = FrfResult(name, inp, frd, two_input=which == 'both')
+            if which != 'both' and cfg.selected_frequencies_Hz:
+                r.selected = _selected(cfg, forces[inp][sl], y[sl], fs, frd)
+            result.frfs.append(r)
+
+
+def _estimate(cfg: Any, inputs: List[np.ndarray], y: np.ndarray, fs: float
+              ) -> List[FrequencyResponseData]:
+    units = ['N'] * len(inputs)
+    if cfg.method == 'lpm':
+        return local_polynomial_frf(inputs, y, fs, degree=cfg.lpm_degree,
+                                    half_width=cfg.lpm_half_width_lines or None,
+                                    frequency_min_Hz=cfg.frequency_min_Hz,
+                                    frequency_max_Hz=cfg.frequency_max_Hz,
+                                    input_units=units, output_unit='m')
+    nperseg = min(cfg.welch_segment_samples, y.size)
+    if len(inputs) == 1:
+        frds = [estimate_frf(inputs[0], y, fs, nperseg=nperseg, input_unit='N',
+                             output_unit='m')]
+    else:
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore', RuntimeWarning)
+            two = estimate_two_input_frf(inputs, y, fs, nperseg=nperseg,
+                                         input_units=units, output_unit='m')
+        frds = list(two.responses)
+    return [f.band(cfg.frequency_min_Hz, cfg.frequency_max_Hz) for f in frds]
+
+
+def _selected(cfg: Any, u: np.ndarray, y: np.ndarray, fs: float,
+              frd: FrequencyResponseData) -> Optional[FrequencyResponseData]:
+    # The LPM at the DFT line nearest each frequency: unlike the single-frequency DFT it is
+    # not spoilt by a transient that has not died out by the end of the section.
+    resolution = fs / y.size
+    freqs = [f for f in cfg.selected_frequencies_Hz if resolution <= f < fs / 2.0 - resolution]
+    if not freqs:
+        return None
+    values, stds, cohs, lines = [], [], [], []
+    for f in freqs:
+        k = round(f / resolution)
+        got, = local_polynomial_frf([u], y, fs, degree=cfg.lpm_degree,
+                                    half_width=cfg.lpm_half_width_lines or None, stride=1,
+                                    frequency_min_Hz=(k - 0.5) * resolution,
+                                    frequency_max_Hz=(k + 0.5) * resolution,
+                                    input_units=['N'], output_unit='m')
+        values.append(got.response[0])
+        stds.append(got.std[0])
+        cohs.append(got.coherence[0])
+        lines.append(got.frequency_Hz[0])
+    sel = FrequencyResponseData(np.array(lines), np.array(values), np.array(cohs),
+                                np.array(stds), frd.n_averages, 'LPM', 'N', 'm',
+                                {'requested_frequency_Hz': list(freqs)})
+    return _compensate(sel, fs, cfg.hold_compensation)
+
+
+def _spacing(frd: FrequencyResponseData) -> float:
+    f = frd.frequency_Hz
+    return float(np.median(np.diff(f))) if f.size > 1 else float('inf')
+
+
+# ---------------------------------------------------------------- step (b)
+
+
+def _tf_step(result: IdentificationResult, report: Progress) -> None:
+    cfg = result.config.tf_fit
+    candidates = list(zip(cfg.numerator_orders, cfg.denominator_orders))
+    singles = [r for r in result.frfs if not r.two_input]
+    for count, r in enumerate(singles):
+        report('tf_fit', count / max(len(singles), 1), f'transfer-function fit of {r.name}')
+        frd = r.frd.select(np.isfinite(r.frd.response) & np.isfinite(r.frd.std)
+                           & (r.frd.std > 0.0))
+        # model-structure floor (see STD_FLOOR)
+        floor = STD_FLOOR * np.abs(frd.response)
+        if np.any(frd.std < floor):
+            frd = FrequencyResponseData(frd.frequency_Hz, frd.response, frd.coherence,
+                                        np.maximum(frd.std, floor), frd.n_averages,
+                                        frd.estimator, frd.input_unit, frd.output_unit,
+                                        frd.details)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter('ignore')
+                r.fit = select_order(frd, candidates, criterion=cfg.criterion)
+        except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
+            result.warnings.append(f'tf_fit: {r.name}: {exc}')
+            continue
+        if not r.fit.chosen.is_stable:
+            result.warnings.append(f'tf_fit: {r.name}: the chosen fit is not stable')
+    report('tf_fit', 1.0, 'transfer-function fits done')
+
+
+def coil_modes(result: IdentificationResult) -> List[Tuple[float, float]]:
+    """
+    Modes ``(frequency_Hz, damping_ratio)`` of the first fitted single-input FRF.
+
+    Coil sections come first, so this is the coil FRF's fit when there is one.
+
+    Parameters
+    ----------
+    result : IdentificationResult
+        Result with step (b) done.
+
+    Returns
+    -------
+    list of (float, float)
+        The chosen fit's modes (empty without a fit).
+    """
+    for r in result.frfs:
+        if r.fit is not None and not r.two_input:
+            return [(m.frequency_Hz, m.damping_ratio) for m in r.fit.chosen.modes]
+    return []
+
+
+def modes_near(measured: Sequence[Tuple[float, float]], model: LinearModel,
+               max_ratio: float = 1.5) -> List[Tuple[float, float]]:
+    """
+    For each mode of a model, the measured mode nearest in log-frequency.
+
+    Parameters
+    ----------
+    measured : sequence of (float, float)
+        Measured ``(frequency_Hz, damping_ratio)``.
+    model : LinearModel
+        The model whose pole pairs are matched.
+    max_ratio : float
+        Largest accepted frequency ratio between a model mode and its match.
+
+    Returns
+    -------
+    list of (float, float)
+        One match per model mode, or empty when a mode has no match (or two share one).
+    """
+    pairs = [p for p in model.poles() if p.s_rad_per_s.imag > 0.0]
+    if not measured or not pairs:
+        return []
+    freqs = np.array([m[0] for m in measured])
+    out, used = [], set()
+    for p in pairs:
+        dist = np.abs(np.log(freqs / p.frequency_Hz))
+        i = int(np.argmin(dist))
+        if dist[i] > np.log(max_ratio) or i in used:
+            return []
+        used.add(i)
+        out.append(tuple(measured[i]))
+    return out
+
+
+# ---------------------------------------------------------------- step (c)
+
+
+def find_plateaus(setpoint: np.ndarray, sample_rate_Hz: float, settle_s: float,
+                  min_plateau_s: float) -> List[Tuple[int, int]]:
+    """
+    Runs of a constant setpoint, without their settling time.
+
+    Parameters
+    ----------
+    setpoint : ndarray
+        Setpoint as applied (piecewise constant on a staircase) [V].
+    sample_rate_Hz : float
+        Sample rate [Hz].
+    settle_s : float
+        Time dropped at the start of each run [s].
+    min_plateau_s : float
+        Shortest run kept (after dropping the settling time) [s].
+
+    Returns
+    -------
+    list of (int, int)
+        ``[start, stop)`` sample ranges.
+    """
+    x = np.asarray(setpoint, dtype=float)
+    if x.size == 0:
+        return []
+    edges = np.flatnonzero(np.diff(x) != 0.0) + 1
+    starts = np.concatenate(([0], edges))
+    stops = np.concatenate((edges, [x.size]))
+    settle = int(round(settle_s * sample_rate_Hz))
+    shortest = max(int(round(min_plateau_s * sample_rate_Hz)), 2)
+    return [(int(a + settle), int(b)) for a, b in zip(starts, stops) if b - a - settle >= shortest]
+
+
+def _static_step(result: IdentificationResult, channels: Mapping[str, np.ndarray],
+                 forces: Mapping[str, np.ndarray], spans: Sequence[Span]) -> None:
+    cfg = result.config.static
+    fs = result.sample_rate_Hz
+    names = cfg.sections or tuple(s.name for s in spans if 'staircase' in s.name)
+    chosen = [s for s in spans if s.name in names]
+    for missing in sorted(set(names) - {s.name for s in chosen}):
+        result.warnings.append(f'static: section {missing!r} is not in the recording; skipped')
+    if not chosen:
+        return
+    pan_force = channels.get('pan_force_N', channels.get('load_changer_force_N'))
+    jobs = [('coil_amplifier', 'coil_setpoint_V', 'coil_current_A', cfg.amplifier_degree,
+             'U', 'I', 'V', 'A'),
+            ('load_changer_amplifier', 'load_changer_setpoint_V', 'load_changer_current_A',
+             cfg.amplifier_degree, 'U', 'I', 'V', 'A')]
+    static = StaticResult()
+    for key, x_name, y_name, degree, xs, ys, xu, yu in jobs:
+        xm, ym = [], []
+        for span in chosen:
+            sl = span.slice
+            for a, b in find_plateaus(channels[x_name][sl], fs, cfg.settle_s,
+                                      cfg.min_plateau_s):
+                xm.append(channels[x_name][sl][a:b].mean())
+                ym.append(channels[y_name][sl][a:b].mean())
+        if len(set(np.round(xm, 12))) <= degree:
+            continue
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')
+            static.fits[key] = fit_polynomial(np.array(xm), np.array(ym), degree,
+                                              x_name=xs, y_name=ys, x_unit=xu, y_unit=yu)
+        static.n_plateaus[key] = len(xm)
+        if key == 'load_changer_amplifier' and pan_force is not None:
+            im, fm = [], []
+            for span in chosen:
+                sl = span.slice
+                for a, b in find_plateaus(channels[x_name][sl], fs, cfg.settle_s,
+                                          cfg.min_plateau_s):
+                    im.append(channels[y_name][sl][a:b].mean())
+                    fm.append(pan_force[sl][a:b].mean())
+            if len(set(np.round(im, 12))) > cfg.load_changer_degree:
+                with warnings.catch_warnings():
+                    warnings.simplefilter('ignore')
+                    static.fits['load_changer'] = fit_polynomial(
+                        np.array(im), np.array(fm), cfg.load_changer_degree, x_name='I',
+                        y_name='F', x_unit='A', y_unit='N')
+                static.n_plateaus['load_changer'] = len(im)
+    if not static.fits:
+        result.warnings.append('static: no staircase with enough distinct levels')
+    result.static = static
+
+
+# ---------------------------------------------------------------- step (d)
+
+
+def _greybox_step(result: IdentificationResult, channels: Mapping[str, np.ndarray],
+                  spans: Sequence[Span], report: Progress) -> None:
+    cfg = result.config
+    gcfg = cfg.greybox
+    names = gcfg.sections or tuple(s.name for s in spans)
+    chosen = [s for s in spans if s.name in names]
+    for missing in sorted(set(names) - {s.name for s in chosen}):
+        result.warnings.append(f'greybox: section {missing!r} is not in the recording; '
+                               f'skipped')
+    if not chosen:
+        result.warnings.append('greybox: no section to fit; skipped')
+        return
+    fs = result.sample_rate_Hz
+    end = max(s.first_sample_index + s.n_samples for s in chosen)
+    setpoints = np.column_stack([channels['coil_setpoint_V'][:end],
+                                 channels['load_changer_setpoint_V'][:end]])
+    start = dict(gcfg.initial)
+    if gcfg.initialise_from_frf:
+        base = cfg.balance.with_mechanics(**start) if start else cfg.balance
+        modes = modes_near(coil_modes(result), linearise(loaded(
+            base.mechanics, cfg.load_mass_kg, cfg.load_changer_coupled)))
+        if len(modes) == 2:
+            start.update({k: v for k, v in match_modes(base, modes, cfg.load_mass_kg,
+                                                       cfg.load_changer_coupled,
+                                                       gcfg.free).items()
+                          if k not in gcfg.initial})
+    specs = parameter_specs(cfg.balance.mechanics, gcfg.free, gcfg.relative_bounds,
+                            gcfg.offset_force_bound_N, initial=start)
+    balance = cfg.balance.with_mechanics(**{k: v for k, v in start.items()
+                                            if k not in gcfg.free})
+    model = BalanceGreyboxModel(balance, fs, setpoints, cfg.load_mass_kg,
+                                cfg.load_changer_coupled)
+    sections = model.sections(channels['position_m'],
+                              [(s.name, s.first_sample_index, s.n_samples) for s in chosen])
+    if gcfg.initialise_from_frf and 'F_off_N' in gcfg.free \
+            and 'F_off_N' not in gcfg.initial:
+        specs = _initial_offset(model, specs, sections)
+    budget = gcfg.max_evaluations or (100 * (len(specs) + 1) if gcfg.method == 'least_squares'
+                                      else 2000 * len(specs))
+
+    def simulate(values: Dict[str, float], inputs: np.ndarray) -> np.ndarray:
+        before = model.n_simulations
+        out = model.simulate(values, inputs)
+        if model.n_simulations != before and model.n_simulations % 5 == 0:
+            report('greybox', min(model.n_simulations / budget, 0.99),
+                   f'{model.n_simulations} simulations')
+        return out
+
+    report('greybox', 0.0, f'grey-box fit of {list(values_of(specs))} with {gcfg.method}')
+    options = None
+    max_nfev = gcfg.max_evaluations or None
+    if gcfg.method == 'pattern_search':
+        options = PatternSearchOptions(
+            initial_mesh_size=gcfg.pattern_search_initial_mesh_size,
+            max_function_evaluations=gcfg.max_evaluations or None)
+        max_nfev = None
+    try:
+        fit = fit_greybox(simulate, sections, specs, method=gcfg.method, options=options,
+                          max_nfev=max_nfev)
+    except (IdentificationError, ValueError, RuntimeError) as exc:
+        result.warnings.append(f'greybox: {exc}')
+        return
+    fitted = balance.with_mechanics(**fit.parameters)
+    lin = linearise(loaded(fitted.mechanics, cfg.load_mass_kg, cfg.load_changer_coupled))
+    out = BalanceGreyboxResult(fit, values_of(specs), lin)
+    record = model.simulate_record(fit.parameters)
+    for span in chosen:
+        sl = span.slice
+        out.time_s[span.name] = np.arange(span.n_samples) / fs
+        out.measured_m[span.name] = channels['position_m'][sl]
+        out.simulated_m[span.name] = record[sl]
+    for sec in fit.sections:
+        worst = float(np.min(sec.fit_percent))
+        if worst < FIT_WARNING_PERCENT:
+            result.warnings.append(f'greybox: section {sec.name!r} fits only {worst:.1f} %')
+        if sec.whiteness_fraction < WHITENESS_WARNING:
+            result.warnings.append(
+                f'greybox: residuals of section {sec.name!r} are not white '
+                f'({100 * sec.whiteness_fraction:.0f} % of lags inside the 99 % band): output '
+                f'error with coloured (process) noise, so the standard errors are optimistic')
+    if not fit.success:
+        result.warnings.append(f'greybox: the optimiser did not converge ({fit.exit_reason})')
+    for r in result.frfs:
+        r.model_response = lin.frequency_response(r.frd.frequency_Hz, r.input).response_m_per_N
+    result.greybox = out
+    report('greybox', 1.0, f'grey-box fit done ({fit.optimizer_evaluations} evaluations)')
+
+
+def _initial_offset(model: BalanceGreyboxModel, specs: List[Any], sections: List[Any]
+                    ) -> List[Any]:
+    # F_off acts at the lever end like the coil force: its error shifts the whole simulated
+    # record by (static coil gain) x (error). One simulation gives the shift, hence the start.
+    values = values_of(specs)
+    sim = model.simulate_record(values)
+    shift = np.mean([np.mean(sec.outputs - sim[model.offset(sec.inputs):][:len(sec.outputs)])
+                     for sec in sections])
+    mech = model.balance(values).mechanics
+    gain = linearise(loaded(mech, model.load_mass_kg, model.load_changer_coupled)
+                     ).static_gain_m_per_N('coil')
+    out = []
+    for spec in specs:
+        if spec.name == 'F_off_N' and gain != 0.0:
+            value = float(np.clip(spec.initial + shift / gain, spec.lower, spec.upper))
+            spec = replace(spec, initial=value)
+        out.append(spec)
+    return out
+
+
+# ---------------------------------------------------------------- serialisation
+
+
+def _mode_dict(mode: Any) -> dict:
+    return {'frequency_Hz': mode.frequency_Hz, 'frequency_std_Hz': mode.frequency_std_Hz,
+            'damping_ratio': mode.damping_ratio, 'damping_ratio_std': mode.damping_std}
+
+
+def _root_dict(root: Root) -> dict:
+    return {'real_rad_per_s': float(root.s_rad_per_s.real),
+            'imag_rad_per_s': float(abs(root.s_rad_per_s.imag)),
+            'frequency_Hz': root.frequency_Hz, 'signed_frequency_Hz': root.signed_frequency_Hz,
+            'damping_ratio': root.damping_ratio}
+
+
+def _frf_dict(r: FrfResult) -> dict:
+    frd = r.frd
+    out: dict = {
+        'name': r.name, 'section': r.section,
+        'input': f'{INPUT_NAMES[r.input]} [N]', 'output': 'lever-end position [m]',
+        'unit': 'm/N', 'estimator': frd.estimator, 'two_input': r.two_input,
+        'n_frequencies': int(frd.frequency_Hz.size),
+        'frequency_min_Hz': float(frd.frequency_Hz.min()) if frd.frequency_Hz.size else None,
+        'frequency_max_Hz': float(frd.frequency_Hz.max()) if frd.frequency_Hz.size else None,
+        'median_coherence': float(np.nanmedian(frd.coherence)) if frd.coherence.size else None,
+        'hold_compensation': frd.details.get('hold_compensation', 'none'),
+    }
+    if r.selected is not None:
+        s = r.selected
+        out['selected_frequencies'] = [
+            {'frequency_Hz': f, 'magnitude_m_per_N': abs(h),
+             'magnitude_dB_re_1m_per_N': 20.0 * math.log10(abs(h)) if h != 0 else None,
+             'phase_deg': math.degrees(float(np.angle(h))),
+             'magnitude_std_m_per_N': sd / math.sqrt(2.0),
+             'phase_std_deg': math.degrees(sd / (math.sqrt(2.0) * abs(h))) if h != 0 else None}
+            for f, h, sd in zip(s.frequency_Hz, s.response, s.std)]
+    if r.fit is not None:
+        c = r.fit.chosen
+        out['transfer_function'] = {
+            'numerator_order': c.numerator_order, 'denominator_order': c.denominator_order,
+            'numerator_s_rad_per_s': list(c.numerator), 'denominator_s_rad_per_s':
+                list(c.denominator),
+            'stable': bool(c.is_stable), 'criterion': r.fit.criterion,
+            'resonances': [_mode_dict(m) for m in c.modes],
+            'anti_resonances': [_mode_dict(m) for m in c.anti_resonances],
+            'real_zeros_Hz': [z.signed_frequency_Hz for z in c.zeros if z.is_real],
+            'order_table': [dict(row) for row in r.fit.table],
+        }
+    return out
+
+
+def _static_dict(static: Optional[StaticResult]) -> Optional[dict]:
+    if static is None:
+        return None
+    out = {}
+    for key, fit in static.fits.items():
+        units = [f'{fit.y_unit}/{fit.x_unit}^{k}' if k > 1 else
+                 (f'{fit.y_unit}/{fit.x_unit}' if k == 1 else fit.y_unit)
+                 for k in range(fit.degree + 1)]
+        out[key] = {'formula': fit.formula(),
+                    'coefficients_ascending': [{'power': k, 'value': float(v),
+                                                'standard_error': float(se), 'unit': u}
+                                               for k, (v, se, u) in enumerate(
+                                                   zip(fit.coefficients, fit.standard_errors,
+                                                       units))],
+                    'r_squared': fit.r_squared, 'residual_std': fit.residual_std,
+                    'residual_std_unit': fit.y_unit, 'n_plateaus': static.n_plateaus.get(key)}
+    return out
+
+
+def _greybox_dict(g: Optional[BalanceGreyboxResult]) -> Optional[dict]:
+    if g is None:
+        return None
+    from emfc_ros.core.ident.balance_greybox import unit_of
+    fit = g.fit
+    free = list(fit.free_names)
+    params = {name: {'value': fit.parameters[name],
+                     'standard_error': fit.standard_errors[name],
+                     'initial': g.initial.get(name), 'unit': unit_of(name)}
+              for name in free}
+    lin = g.linear_model
+    return {
+        'method': fit.method, 'success': fit.success, 'exit_reason': fit.exit_reason,
+        'cost': fit.cost, 'optimizer_evaluations': fit.optimizer_evaluations,
+        'n_evaluations': fit.n_evaluations, 'time_s': fit.time_s,
+        'parameters': params,
+        'correlation': {'names': free, 'matrix': np.asarray(fit.correlation).tolist()},
+        'sections': [{'name': s.name, 'fit_percent': float(np.min(s.fit_percent)),
+                      'rms_error_m': float(np.max(s.rms_error)),
+                      'whiteness_fraction': s.whiteness_fraction,
+                      'input_correlation_fraction': s.input_correlation_fraction}
+                     for s in fit.sections],
+        'linearised_model': {
+            'poles': [_root_dict(p) for p in lin.poles()],
+            'zeros_coil': [_root_dict(z) for z in lin.zeros('coil')],
+            'zeros_pan': [_root_dict(z) for z in lin.zeros('pan')],
+            'static_gain_coil_m_per_N': lin.static_gain_m_per_N('coil'),
+            'static_gain_pan_m_per_N': lin.static_gain_m_per_N('pan'),
+        },
+    }
+
+
+def _to_plain(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _to_plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_to_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return [_to_plain(v) for v in value.tolist()]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        v = float(value)
+        return v if math.isfinite(v) else None
+    if isinstance(value, complex):
+        return {'real': value.real, 'imag': value.imag}
+    return value

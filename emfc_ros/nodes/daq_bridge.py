@@ -1,0 +1,1009 @@
+"""
+The daq_bridge node: the only node that talks to the DAQ/FPGA device (or its stand-ins).
+
+Same topics in and out as the plant simulator, so experiments, recorders and controllers
+run unchanged on hardware. Topics (relative to the node namespace):
+
+- ``excitation`` (``std_msgs/Float64MultiArray``, in): setpoint-voltage blocks [V], one row
+  per device output (``coil``, ``load_changer``), block convention. Clamped to the output
+  limits (counted) and streamed to the device ``excitation_lead_s`` ahead of its sample
+  clock: excitation sample ``k`` of an epoch is applied at device sample ``k + offset``, the
+  offset fixed when the epoch's first block arrives and published in the measurements
+  description (``extra.excitation_offset_samples``). ``excitation/consumed``
+  (``std_msgs/UInt64``, out): excitation samples the device has applied.
+- ``measurements`` (out): the device's input channels, one block per device frame, with the
+  device's exact sample indices (never a block that spans a gap); latched
+  ``measurements/description`` with names and units from the device configuration;
+  ``measurements/position``, ``current`` and ``force`` (out): grouped by unit.
+- ``joint_states`` (out), ``joint_commands`` and ``commands`` (in): the controller interface;
+  an effort command [N] becomes a coil setpoint through the balance's motor and amplifier
+  characteristics and is added to the coil output; zeroed after ``command_timeout_s``.
+- ``/diagnostics`` (out): back-end health, excitation defects, clamping, watchdog, e-stop,
+  arrival-to-publication latency.
+
+Services (``std_srvs/Trigger``): ``~/start``, ``~/stop`` (acquisition), ``~/emergency_stop``
+(outputs to their safe values at once, latched) and ``~/reset`` (release the e-stop).
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import threading
+import time
+from typing import Any, Dict, List, Optional, Sequence, Tuple
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+import numpy as np
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.exceptions import ParameterUninitializedException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray, String, UInt64
+from std_srvs.srv import Trigger
+
+from emfc_ros.core.blocks import Block, Channel, Continuity, SequenceTracker, StreamDescription
+from emfc_ros.core.device.backend import (create_backend, DEFAULT_INPUTS, DEFAULT_OUTPUTS,
+                                          device_config_from_mapping, DeviceConfig)
+from emfc_ros.core.device.errors import DeviceConfigError, DeviceError
+from emfc_ros.core.device.function_generator import GeneratorSpec, make_signal
+from emfc_ros.core.device.sim_backend import load_parameters
+from emfc_ros.core.errors import BlockError, ConfigError
+from emfc_ros.core.excitation_queue import ExcitationQueue
+from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V
+from emfc_ros.nodes.convert import (
+    BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, diagnostic_status,
+    LATCHED_QOS, msg_to_block)
+from emfc_ros.nodes.spin import run_node
+
+BACKEND_NAMES = ('sim', 'udp', 'replay')
+EXCITATION_MODES = ('stream', 'function_generator')
+REPLAY_PACINGS = ('receive_time', 'sample_clock', 'fast')
+JOINT = 'lever'
+STATE_QOS = QoSProfile(depth=1000)
+LATENCY_WINDOW = 20000
+GROUP_UNITS = {'position': ('m',), 'current': ('A',), 'force': ('N',)}
+GROUP_EXTRA = {'position': ('sensor_V',)}
+
+#: Parameters whose type is declared without a default (empty: derived).
+_UNSET_STRINGS = Parameter.Type.STRING_ARRAY
+_UNSET_DOUBLES = Parameter.Type.DOUBLE_ARRAY
+
+PARAMETERS: Dict[str, Tuple[Any, str]] = {
+    'backend': ('sim', "device back-end: 'sim' (simulated balance in process), 'udp' (a "
+                       "device or the emulator over UDP), 'replay' (a recorded bag)"),
+    'autostart': (True, 'configure and start the device when the node comes up'),
+    'sample_rate_Hz': (10000.0, 'device sample clock [Hz], (0, 1e7]'),
+    'block_size': (1000, 'samples per channel per measurement block [samples], 1 to 65535'),
+    'inputs': (list(DEFAULT_INPUTS), 'measured channel names (the unit is the suffix)'),
+    'input_units': (_UNSET_STRINGS, 'SI unit of each input; unset: the converter default'),
+    'input_scales': (_UNSET_DOUBLES, 'SI value per converter code of each input [unit/code]; '
+                                     'unset: the converter default'),
+    'input_offsets': (_UNSET_DOUBLES, 'SI value at code 0 of each input [unit]; unset: 0'),
+    'outputs': (list(DEFAULT_OUTPUTS), 'actuator output names: coil, load changer'),
+    'output_min_V': ([-10.0, -10.0], 'lower limit of each output [V]; setpoints are clamped'),
+    'output_max_V': ([10.0, 10.0], 'upper limit of each output [V]; setpoints are clamped'),
+    'output_safe_V': ([0.0, 0.0], 'safe value of each output [V]: driven when stopped, on '
+                                  'watchdog trip and emergency stop'),
+    'device_watchdog_timeout_s': (0.5, "the device's own watchdog [s]: outputs safe when the "
+                                       'host is silent this long'),
+    'excitation_mode': ('stream', "'stream': excitation blocks in; 'function_generator': "
+                                  'the on-device generator (funcgen.<output>.*); outputs '
+                                  "with waveform 'off' still follow the excitation stream"),
+    'excitation_lead_s': (0.1, 'setpoints are written this far ahead of the device clock '
+                               '[s], 0 to 10'),
+    'watchdog_timeout_s': (1.0, 'outputs go to their safe values when excitation stopped '
+                                'arriving for this long [s], (0, 3600]'),
+    'state_rate_Hz': (1000.0, 'rate of joint_states [Hz], 0 disables, at most '
+                              'sample_rate_Hz'),
+    'command_timeout_s': (0.1, 'effort command watchdog [s]: the command returns to 0 N after '
+                               'this long without a new one, (0, 60]'),
+    'publish_groups': (True, 'also publish measurements/position, current and force'),
+    'balance_file': ('', 'balance parameter YAML (motor and amplifier characteristics for '
+                         'effort commands, and the sim back-end); empty: the shipped default'),
+    'diagnostics_period_s': (1.0, 'period of /diagnostics [s], 0.05 to 60'),
+    'publisher_depth': (100, 'history depth of the block publishers [blocks], 1 to 100000: '
+                             'a burst after a stall longer than this overruns slow readers'),
+    'udp.device_host': ('127.0.0.1', 'IP address of the device'),
+    'udp.device_port': (5005, 'UDP port of the device, 1 to 65535'),
+    'udp.bind_host': ('127.0.0.1', 'local IP address to bind'),
+    'udp.bind_port': (0, 'local UDP port, 0: any free one'),
+    'udp.heartbeat_period_s': (0.1, 'heartbeat period [s], (0, 60]'),
+    'udp.request_timeout_s': (0.2, 'control request timeout before a retry [s], (0, 60]'),
+    'udp.device_timeout_s': (1.0, 'silence after which the device is reconnected [s], '
+                                  '(0, 60]'),
+    'udp.reorder_window': (8, 'frames the reorder buffer spans before declaring a gap'),
+    'udp.reorder_timeout_s': (0.2, 'longest wait for a missing frame [s], (0, 60]'),
+    'udp.setpoint_format': ('float64', "setpoint frame format: 'float64' or 'int16'"),
+    'replay.bag': ('', 'replay: the bag folder'),
+    'replay.topic': ('', "replay: block topic to replay; empty: the bag's */measurements"),
+    'replay.pacing': ('receive_time', "replay: 'receive_time' (the original block timing), "
+                                      "'sample_clock' or 'fast'"),
+    'replay.speed': (1.0, 'replay: speed factor [1], > 0'),
+    'replay.loop': (False, 'replay: start over in a new epoch after the last block'),
+    'sim.seed': (0, 'sim: noise seed, >= 0'),
+    'sim.load_mass_kg': (0.0, 'sim: mass on the pan [kg], 0 to 2'),
+}
+#: Function-generator fields (``funcgen.<output>.<field>``) and their defaults.
+FUNCGEN_FIELDS = {
+    'waveform': ('off', "'off' (follow the excitation stream), 'sine', 'chirp', 'prbs', "
+                        "'constant'"),
+    'amplitude_V': (0.0, 'peak amplitude [V] (PRBS: +/- levels)'),
+    'frequency_Hz': (0.0, 'sine frequency, chirp start frequency [Hz]'),
+    'f_stop_Hz': (0.0, 'chirp stop frequency [Hz]'),
+    'sweep_time_s': (1.0, 'chirp sweep duration [s]'),
+    'method': ('logarithmic', "chirp law: 'linear' or 'logarithmic'"),
+    'phase_rad': (0.0, 'phase at sample 0 [rad]'),
+    'prbs_order': (10, 'PRBS register length, 2 to 31'),
+    'prbs_hold_samples': (1, 'samples per PRBS bit [samples]'),
+    'gain': (1.0, 'signal matching gain [1]'),
+    'offset_V': (0.0, 'signal matching offset [V]'),
+}
+#: Autostart retries a device that does not answer this often [s].
+RETRY_PERIOD_S = 5.0
+RUNTIME = ('watchdog_timeout_s', 'command_timeout_s', 'state_rate_Hz', 'excitation_lead_s')
+
+
+def funcgen_key(output: str) -> str:
+    """
+    The ``funcgen.<key>.*`` parameter group of an output channel.
+
+    Parameters
+    ----------
+    output : str
+        Output channel name, for example ``'coil_V'``.
+
+    Returns
+    -------
+    str
+        The name without its ``_V`` unit suffix (``'coil'``).
+    """
+    return output[:-2] if output.endswith('_V') and len(output) > 2 else output
+
+
+def _percentiles_us(values: Sequence[int]) -> Tuple[float, float]:
+    if not values:
+        return float('nan'), float('nan')
+    arr = np.fromiter(values, dtype=np.float64, count=len(values))
+    return float(np.median(arr) / 1e3), float(np.percentile(arr, 99) / 1e3)
+
+
+class DaqBridgeNode(Node):
+    """
+    Bridge between ROS topics and a device back-end (sim, udp or replay).
+
+    Parameters
+    ----------
+    **kwargs
+        Passed to :class:`rclpy.node.Node` (for example ``parameter_overrides``).
+    """
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('daq_bridge', allow_undeclared_parameters=True,
+                         automatically_declare_parameters_from_overrides=True, **kwargs)
+        for name, (default, text) in PARAMETERS.items():
+            if not self.has_parameter(name):
+                self.declare_parameter(name, default, ParameterDescriptor(description=text))
+        for out in self._param('outputs') or []:
+            for field, (default, text) in FUNCGEN_FIELDS.items():
+                name = f'funcgen.{funcgen_key(str(out))}.{field}'
+                if not self.has_parameter(name):
+                    self.declare_parameter(name, default,
+                                           ParameterDescriptor(description=text))
+        self._runtime: Dict[str, float] = {}
+        for name in RUNTIME:
+            try:
+                self._runtime[name] = float(self._param(name))
+            except (TypeError, ValueError):     # refused with a reason by _build
+                self._runtime[name] = float(PARAMETERS[name][0])
+        self._lock = threading.RLock()
+        self._error = ''
+        self._last_error = ''
+        self._state = 'idle'
+        self._backend: Any = None
+        self._config: Optional[DeviceConfig] = None
+        self._specs: List[GeneratorSpec] = []
+        self._balance: Any = None
+        self._counts: Dict[str, int] = collections.Counter()
+        self._latency_ns: collections.deque = collections.deque(maxlen=LATENCY_WINDOW)
+        self._age_ns: collections.deque = collections.deque(maxlen=LATENCY_WINDOW)
+        self._reader: Optional[threading.Thread] = None
+        self._reader_stop = threading.Event()
+        self._sim_timer = None
+        self._reset_stream_state()
+        self._estop = False
+        self._tripped = False
+        self._command_N = 0.0
+        self._command_time = -math.inf
+        self._last_position_m = 0.0
+        self._builders: Dict[str, BlockMessageBuilder] = {}
+        self._groups: Dict[str, List[int]] = {}
+        self._pub: Dict[str, Any] = {}
+        self._pub_desc: Dict[str, Any] = {}
+        try:
+            self._build()
+        except (ConfigError, DeviceConfigError, DeviceError, ValueError, OSError,
+                TypeError) as exc:
+            self._error = f'configuration refused: {exc}'
+            self._state = 'error'
+            self.get_logger().error(self._error)
+        self._make_publishers()
+        self._pub_ack = self.create_publisher(UInt64, 'excitation/consumed', CONTROL_QOS)
+        self._pub_state = self.create_publisher(JointState, 'joint_states', STATE_QOS)
+        self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.create_subscription(Float64MultiArray, 'excitation', self._on_excitation,
+                                 BLOCK_QOS)
+        self.create_subscription(JointState, 'joint_commands', self._on_joint_command,
+                                 CONTROL_QOS)
+        self.create_subscription(Float64MultiArray, 'commands', self._on_array_command,
+                                 CONTROL_QOS)
+        self.create_service(Trigger, '~/start', self._srv_start)
+        self.create_service(Trigger, '~/stop', self._srv_stop)
+        self.create_service(Trigger, '~/emergency_stop', self._srv_estop)
+        self.create_service(Trigger, '~/reset', self._srv_reset)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        period = float(self._param('diagnostics_period_s'))
+        self.create_timer(min(60.0, max(0.05, period)), self._publish_diagnostics)
+        self.create_timer(0.01, self._watchdog_tick)
+        self._retry_timer = None
+        if self._backend is not None and self._param('autostart'):
+            ok, message = self._start()
+            if not ok:
+                self.get_logger().error(f'{message}; retrying every {RETRY_PERIOD_S} s')
+                self._retry_timer = self.create_timer(RETRY_PERIOD_S, self._retry_start)
+
+    def _retry_start(self) -> None:
+        """Autostart: try again until the device answers (or someone calls a service)."""
+        if self._state == 'running' or self._retry_timer is None:
+            self._cancel_retry()
+            return
+        ok, message = self._start()
+        if ok:
+            self.get_logger().info(f'device answered: {message}')
+            self._cancel_retry()
+        else:
+            self.get_logger().warning(message, throttle_duration_sec=30.0)
+
+    def _cancel_retry(self) -> None:
+        if self._retry_timer is not None:
+            self.destroy_timer(self._retry_timer)
+            self._retry_timer = None
+
+    # -- configuration ---------------------------------------------------------------------
+
+    def _param(self, name: str):
+        try:
+            return self.get_parameter(name).value
+        except ParameterUninitializedException:
+            return None
+
+    def _device_mapping(self) -> Dict[str, Any]:
+        cfg: Dict[str, Any] = {'watchdog_timeout_s': self._param('device_watchdog_timeout_s')}
+        for key in ('sample_rate_Hz', 'block_size', 'inputs', 'input_units', 'input_scales',
+                    'input_offsets', 'outputs', 'output_min_V', 'output_max_V',
+                    'output_safe_V'):
+            value = self._param(key)
+            if value is None:
+                continue
+            if not isinstance(value, (str, bool, int, float)):
+                value = list(value)
+            cfg[key] = value
+        return cfg
+
+    def _build(self) -> None:
+        """Build the back-end, the device configuration and the generator specs."""
+        name = str(self._param('backend'))
+        if name not in BACKEND_NAMES:
+            raise ConfigError('backend', f'must be one of {list(BACKEND_NAMES)}, got {name!r}')
+        mode = str(self._param('excitation_mode'))
+        if mode not in EXCITATION_MODES:
+            raise ConfigError('excitation_mode', f'must be one of {list(EXCITATION_MODES)}, '
+                                                 f'got {mode!r}')
+        for key, low, high in (('watchdog_timeout_s', 0.0, 3600.0),
+                               ('command_timeout_s', 0.0, 60.0),
+                               ('excitation_lead_s', -1e-12, 10.0)):
+            value = float(self._param(key))
+            if not low < value <= high:
+                raise ConfigError(key, f'must be in ({low}, {high}], got {value}')
+        balance = str(self._param('balance_file'))
+        self._balance = load_parameters(balance or None)
+        if name == 'replay':
+            pacing = str(self._param('replay.pacing'))
+            if pacing not in REPLAY_PACINGS:
+                raise ConfigError('replay.pacing', f'must be one of {list(REPLAY_PACINGS)}, '
+                                                   f'got {pacing!r}')
+            backend = create_backend('replay', bag=str(self._param('replay.bag')),
+                                     topic=str(self._param('replay.topic')), pacing=pacing,
+                                     speed=float(self._param('replay.speed')),
+                                     loop=bool(self._param('replay.loop')))
+            config = backend.recorded_config
+        else:
+            config = device_config_from_mapping(self._device_mapping())
+            if name == 'udp':
+                port = int(self._param('udp.device_port'))
+                if not 1 <= port <= 65535:
+                    raise ConfigError('udp.device_port', f'must be in [1, 65535], got {port}')
+                backend = create_backend(
+                    'udp', device_address=(str(self._param('udp.device_host')), port),
+                    bind_address=(str(self._param('udp.bind_host')),
+                                  int(self._param('udp.bind_port'))),
+                    heartbeat_period_s=float(self._param('udp.heartbeat_period_s')),
+                    request_timeout_s=float(self._param('udp.request_timeout_s')),
+                    device_timeout_s=float(self._param('udp.device_timeout_s')),
+                    reorder_window=int(self._param('udp.reorder_window')),
+                    reorder_timeout_s=float(self._param('udp.reorder_timeout_s')),
+                    setpoint_format=str(self._param('udp.setpoint_format')))
+            else:
+                load = float(self._param('sim.load_mass_kg'))
+                if not 0.0 <= load <= 2.0:
+                    raise ConfigError('sim.load_mass_kg', f'must be in [0, 2] kg, got {load}')
+                seed = int(self._param('sim.seed'))
+                if seed < 0:
+                    raise ConfigError('sim.seed', f'must be >= 0, got {seed}')
+                backend = create_backend('sim', params=self._balance, seed=seed,
+                                         simulator_options={'load_mass_kg': load})
+        rate = float(self._param('state_rate_Hz'))
+        if not 0.0 <= rate <= config.sample_rate_Hz:
+            raise ConfigError('state_rate_Hz', f'must be in [0, {config.sample_rate_Hz}] Hz, '
+                                               f'got {rate}')
+        self._specs = self._generator_specs(config) if mode == 'function_generator' else \
+            [GeneratorSpec()] * len(config.outputs)
+        self._backend = backend
+        self._config = config
+        self._mode = mode
+        self._rate = config.sample_rate_Hz
+        self._safe = config.safe_values_V
+        self._lo = np.array([c.min_V for c in config.outputs])[:, None]
+        self._hi = np.array([c.max_V for c in config.outputs])[:, None]
+        self._row = {n: i for i, n in enumerate(config.input_names)}
+        units = [c.unit for c in config.inputs]
+        for group, wanted in GROUP_UNITS.items():
+            rows = [i for i, (n, u) in enumerate(zip(config.input_names, units))
+                    if u in wanted or n in GROUP_EXTRA.get(group, ())]
+            if rows:
+                self._groups[group] = rows
+
+    def _generator_specs(self, config: DeviceConfig,
+                         overrides: Optional[Dict[str, Any]] = None) -> List[GeneratorSpec]:
+        specs = []
+        for out in config.outputs:
+            key = funcgen_key(out.name)
+            fields = {}
+            for field, (default, _) in FUNCGEN_FIELDS.items():
+                name = f'funcgen.{key}.{field}'
+                if overrides and name in overrides:
+                    value = overrides[name]
+                elif self.has_parameter(name):
+                    value = self._param(name)
+                else:
+                    value = default
+                if isinstance(default, float) and isinstance(value, int) and \
+                        not isinstance(value, bool):
+                    value = float(value)
+                fields[field] = value
+            try:
+                spec = GeneratorSpec(**fields)
+                make_signal(spec, config.sample_rate_Hz)
+            except (DeviceConfigError, TypeError) as exc:
+                raise ConfigError(f'funcgen.{key}', str(exc)) from None
+            specs.append(spec)
+        return specs
+
+    def _on_set_parameters(self, params: List[Parameter]) -> SetParametersResult:
+        funcgen: Dict[str, Any] = {}
+        for p in params:
+            if p.name.startswith('funcgen.'):
+                funcgen[p.name] = p.value
+                continue
+            if p.name not in RUNTIME:
+                if p.name in PARAMETERS:
+                    return SetParametersResult(
+                        successful=False, reason=f'{p.name} is fixed at start-up; restart the '
+                                                 'node with the new value')
+                continue
+            if p.type_ not in (Parameter.Type.DOUBLE, Parameter.Type.INTEGER):
+                return SetParametersResult(successful=False,
+                                           reason=f'{p.name} must be a number, got {p.value!r}')
+            value = float(p.value)
+            rate = self._rate if self._config is not None else 1e7
+            limits = {'watchdog_timeout_s': (0.0, 3600.0, False),
+                      'command_timeout_s': (0.0, 60.0, False),
+                      'state_rate_Hz': (0.0, rate, True),
+                      'excitation_lead_s': (0.0, 10.0, True)}[p.name]
+            low, high, closed = limits
+            if not (low <= value if closed else low < value) or not value <= high or \
+                    not math.isfinite(value):
+                bracket = '[' if closed else '('
+                return SetParametersResult(
+                    successful=False, reason=f'{p.name} must be in {bracket}{low}, {high}], '
+                                             f'got {p.value!r}')
+        if funcgen and self._config is not None:
+            try:
+                specs = self._generator_specs(self._config, funcgen)
+            except ConfigError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+            if self._mode == 'function_generator':
+                self._specs = specs
+                if self._state == 'running' and not (self._estop or self._tripped):
+                    try:
+                        self._backend.set_function_generator(specs)
+                    except (DeviceError, DeviceConfigError) as exc:
+                        return SetParametersResult(successful=False,
+                                                   reason=f'device refused: {exc}')
+        for p in params:
+            if p.name in RUNTIME:
+                self._runtime[p.name] = float(p.value)
+        return SetParametersResult(successful=True)
+
+    # -- life cycle --------------------------------------------------------------------------
+
+    def _reset_stream_state(self) -> None:
+        self._epoch: Optional[int] = None
+        self._expected: Optional[int] = None
+        self._last_end: Optional[int] = None
+        self._last_arrival = 0.0
+        self._t_start = time.monotonic()
+        self._anchor_ns = time.monotonic_ns()
+        self._start_time_ns = 0
+        self._write_index: Optional[int] = None
+        self._offset: Optional[int] = None
+        self._exc_tracker = SequenceTracker()
+        self._exc_received_end = 0
+        self._queue = ExcitationQueue(self._safe if self._config is not None else [0.0])
+        self._acked = -1
+        self._last_excitation = None
+
+    def _start(self) -> Tuple[bool, str]:
+        if self._backend is None:
+            return False, self._error or 'no back-end'
+        if self._state == 'running':
+            return True, 'already running'
+        try:
+            self._backend.configure(self._config)
+            specs = self._safe_specs() if self._estop else self._specs
+            if self._estop or self._mode == 'function_generator':
+                self._backend.set_function_generator(specs)
+            with self._lock:
+                self._reset_stream_state()
+                self._tripped = False
+                epoch = self._backend.start()
+                self._t_start = time.monotonic()
+                self._anchor_ns = time.monotonic_ns()
+                self._start_time_ns = self.get_clock().now().nanoseconds
+                self._epoch = epoch
+        except (DeviceError, DeviceConfigError) as exc:
+            self._state = 'error'
+            self._last_error = f'start failed: {exc}'
+            return False, self._last_error
+        self._state = 'running'
+        self._error = ''
+        self._publish_descriptions()
+        self._reader_stop.clear()
+        if getattr(self._backend, 'name', '') == 'sim':
+            block = self._config.block_size
+            period = min(0.02, max(0.001, 0.5 * block / self._rate))
+            self._sim_timer = self.create_timer(period, self._sim_tick)
+        else:
+            self._reader = threading.Thread(target=self._read_loop, daemon=True,
+                                            name='daq-bridge-reader')
+            self._reader.start()
+        return True, f'started: epoch {epoch}'
+
+    def _stop(self) -> Tuple[bool, str]:
+        if self._state != 'running':
+            return True, 'not running'
+        self._reader_stop.set()
+        if self._reader is not None:
+            self._reader.join(5.0)
+            self._reader = None
+        if self._sim_timer is not None:
+            self.destroy_timer(self._sim_timer)
+            self._sim_timer = None
+        self._state = 'stopped'
+        try:
+            self._backend.stop()
+        except DeviceError as exc:
+            self._last_error = f'stop: {exc}'
+            return False, self._last_error
+        return True, 'stopped: outputs at their safe values'
+
+    def destroy_node(self) -> None:
+        """Stop the acquisition and release the back-end, then destroy the node."""
+        try:
+            self._stop()
+        finally:
+            if self._backend is not None:
+                try:
+                    self._backend.close()
+                except (DeviceError, OSError):
+                    pass
+            super().destroy_node()
+
+    # -- measurement path --------------------------------------------------------------------
+
+    def _read_loop(self) -> None:
+        backend = self._backend
+        while not self._reader_stop.is_set():
+            try:
+                block = backend.read_block(timeout_s=0.05)
+            except Exception as exc:       # noqa: B902 a back-end failure must not kill us
+                self._counts['reader_errors'] += 1
+                self._last_error = f'read_block: {exc}'
+                self._reader_stop.wait(0.1)
+                continue
+            if block is None:
+                continue
+            try:
+                self._handle_block(block, time.monotonic_ns())
+            except Exception as exc:       # noqa: B902 e.g. publishing during shutdown
+                if not self.context.ok():
+                    return
+                self._counts['reader_errors'] += 1
+                self._last_error = f'publishing a block: {exc}'
+
+    def _sim_tick(self) -> None:
+        block = self._config.block_size
+        due = int((time.monotonic() - self._t_start) * self._rate)
+        for _ in range(64):
+            end = self._last_end or 0
+            if end + block > due:
+                return
+            got = self._backend.read_block(0.0)
+            if got is None:
+                return
+            self._handle_block(got, time.monotonic_ns())
+
+    def _handle_block(self, block: Block, arrival_ns: int) -> None:
+        cfg = self._config
+        if block.samples.ndim != 2 or block.samples.shape[0] != len(cfg.inputs) or \
+                block.n_samples < 1:
+            self._counts['malformed_blocks'] += 1
+            self._last_error = f'device block of shape {block.samples.shape} dropped'
+            return
+        with self._lock:
+            if block.epoch != self._epoch:
+                self._epoch = block.epoch
+                self._expected = None
+                self._last_end = None
+                self._write_index = None
+                self._offset = None            # the device index restarted: remap
+                self._queue = ExcitationQueue(self._safe)
+                self._anchor_ns = arrival_ns - int(block.end_index * 1e9 / self._rate)
+                self._counts['epoch_changes'] += 1
+                new_epoch = True
+            else:
+                new_epoch = False
+            if self._expected is not None:
+                if block.first_sample_index < self._expected:
+                    self._counts['dropped_out_of_order_blocks'] += 1
+                    return
+                if block.first_sample_index > self._expected:
+                    self._counts['published_gaps'] += 1
+                    self._counts['published_missing_samples'] += \
+                        block.first_sample_index - self._expected
+            self._expected = block.end_index
+            self._last_end = block.end_index
+            self._last_arrival = arrival_ns * 1e-9
+        if new_epoch:
+            self._publish_descriptions()
+        samples = block.samples
+        for topic, pub in self._pub.items():
+            rows = samples if topic == 'measurements' else samples[self._groups[topic[13:]]]
+            builder = self._builders.setdefault(topic, BlockMessageBuilder())
+            pub.publish(builder.build(block.first_sample_index, self._rate, block.epoch, rows))
+        done = time.monotonic_ns()
+        self._latency_ns.append(done - arrival_ns)
+        self._age_ns.append(done - self._anchor_ns - int(block.end_index * 1e9 / self._rate))
+        self._counts['published_blocks'] += 1
+        self._counts['published_samples'] += block.n_samples
+        self._write_setpoints(block.end_index)
+        self._acknowledge(block.end_index)
+        self._publish_states(block)
+
+    # -- setpoint path -----------------------------------------------------------------------
+
+    def _lead_samples(self) -> int:
+        lead = int(math.ceil(self._runtime['excitation_lead_s'] * self._rate))
+        return max(lead, 1)
+
+    def _device_index_now(self) -> int:
+        """The device's sample index now, from the epoch's START-anchored monotonic clock."""
+        return max(0, int((time.monotonic_ns() - self._anchor_ns) * 1e-9 * self._rate))
+
+    def _command_V(self) -> float:
+        if self._command_N == 0.0:
+            return 0.0
+        if time.monotonic() - self._command_time > self._runtime['command_timeout_s']:
+            self._command_N = 0.0
+            self._counts['command_watchdog_trips'] += 1
+            return 0.0
+        return coil_setpoint_for_force_V(self._balance, self._command_N, self._last_position_m)
+
+    def _write_setpoints(self, device_end: int) -> None:
+        """Write setpoints for the device samples up to ``device_end + lead``."""
+        with self._lock:
+            command = self._command_V()
+            halted = self._estop or self._tripped
+            if self._offset is None and command == 0.0 and not halted:
+                return                          # nothing to stream: the device holds safe
+            target = device_end + self._lead_samples()
+            w = self._write_index if self._write_index is not None else device_end
+            if w < device_end:
+                self._counts['setpoint_late_samples'] += device_end - w
+                w = device_end
+            n = target - w
+            if n <= 0:
+                return
+            out = np.repeat(self._safe[:, None], n, axis=1)
+            q = self._queue
+            if self._offset is not None and not halted:
+                if q.queued and q.head_index < w:
+                    late = min(w - q.head_index, q.queued)
+                    q.pop(late)
+                    self._counts['excitation_late_samples'] += late
+                lead = max(0, q.head_index - w)
+                if lead < n:
+                    out[:, lead:] = q.pop(n - lead)[0]
+            if command and not halted:
+                out[0] += command
+                clipped = int(np.count_nonzero((out < self._lo) | (out > self._hi)))
+                if clipped:
+                    self._counts['clamped_samples'] += clipped
+                    np.clip(out, self._lo, self._hi, out=out)
+            self._write_index = target
+        try:
+            self._backend.write_setpoints(w, out)
+            self._counts['setpoint_samples_written'] += n
+        except (DeviceError, DeviceConfigError) as exc:
+            self._counts['setpoint_write_errors'] += 1
+            self._last_error = f'write_setpoints: {exc}'
+
+    def _acknowledge(self, device_end: int) -> None:
+        with self._lock:
+            if self._offset is None:
+                return
+            consumed = min(device_end - self._offset, self._exc_received_end)
+        if consumed > self._acked and consumed >= 0:
+            self._acked = consumed
+            self._pub_ack.publish(UInt64(data=int(consumed)))
+
+    def _on_excitation(self, msg: Float64MultiArray) -> None:
+        if self._config is None:
+            self._reject(self._error or 'not configured')
+            return
+        try:
+            block = msg_to_block(msg, expected_channels=len(self._config.outputs))
+            if abs(block.sample_rate_Hz - self._rate) > 1e-9 * self._rate:
+                raise BlockError(f'excitation at {block.sample_rate_Hz} Hz, the device runs '
+                                 f'at {self._rate} Hz')
+            if block.n_samples == 0:
+                raise BlockError('excitation block has no samples')
+            if not np.all(np.isfinite(block.samples)):
+                raise BlockError('excitation block holds NaN or infinite values')
+        except BlockError as exc:
+            self._reject(str(exc))
+            return
+        samples = np.array(block.samples, dtype=np.float64)
+        clipped = int(np.count_nonzero((samples < self._lo) | (samples > self._hi)))
+        if clipped:
+            np.clip(samples, self._lo, self._hi, out=samples)
+        remap = False
+        with self._lock:
+            kind = self._exc_tracker.observe(block.first_sample_index, block.n_samples,
+                                             block.epoch)
+            if kind in (Continuity.DUPLICATE, Continuity.REORDERED, Continuity.OVERLAP):
+                return                          # counted by the tracker
+            self._counts['excitation_blocks'] += 1
+            self._counts['clamped_samples'] += clipped
+            self._last_excitation = time.monotonic()
+            if self._tripped:
+                self._tripped = False
+                self._restore_generator()
+            if self._estop:
+                self._counts['excitation_dropped_estop'] += 1
+                return                          # latched: nothing is queued until ~/reset
+            if kind in (Continuity.FIRST, Continuity.RESTART) or self._offset is None:
+                start = self._device_index_now() + self._lead_samples()
+                if self._write_index is not None:
+                    start = max(start, self._write_index)
+                self._offset = start - block.first_sample_index
+                self._queue = ExcitationQueue(self._safe)
+                self._acked = -1
+                remap = True
+            self._exc_received_end = block.end_index
+            self._queue.push(Block(block.first_sample_index + self._offset, self._rate, 0,
+                                   samples))
+        if remap:
+            self._publish_descriptions()
+
+    def _reject(self, reason: str) -> None:
+        self._counts['excitation_malformed'] += 1
+        self._last_error = reason
+        self.get_logger().warning(f'excitation block dropped: {reason}',
+                                  throttle_duration_sec=5.0)
+
+    # -- safety --------------------------------------------------------------------------------
+
+    def _safe_specs(self) -> List[GeneratorSpec]:
+        return [GeneratorSpec('constant', offset_V=float(v)) for v in self._safe]
+
+    def _restore_generator(self) -> None:
+        try:
+            self._backend.set_function_generator(self._specs)
+        except (DeviceError, DeviceConfigError) as exc:
+            self._last_error = f'function generator restore failed: {exc}'
+
+    def _drive_safe(self, why: str) -> str:
+        """Outputs to their safe values now: the device's generator, and safe setpoints."""
+        with self._lock:
+            self._queue = ExcitationQueue(self._safe)
+            self._offset = None
+            self._command_N = 0.0
+        try:
+            self._backend.set_function_generator(self._safe_specs())
+        except (DeviceError, DeviceConfigError) as exc:
+            # The device did not take it: stop sampling (STOP also drives the outputs safe).
+            self._last_error = f'{why}: generator request failed ({exc}); stopping the device'
+            self._stop()
+        # After the device's answer: an upper bound of the sample index at which it acted.
+        index = self._device_index_now()
+        self._counts[f'{why}_device_index'] = index
+        return f'outputs driven to {self._safe.tolist()} V from about device sample {index}'
+
+    def _watchdog_tick(self) -> None:
+        if self._state != 'running' or self._tripped or self._estop:
+            return
+        last = self._last_excitation
+        if last is None or not any(not s.active for s in self._specs):
+            return
+        if time.monotonic() - last > self._runtime['watchdog_timeout_s']:
+            self._tripped = True
+            self._counts['watchdog_trips'] += 1
+            message = self._drive_safe('watchdog_trip')
+            self.get_logger().warning(f'excitation watchdog tripped: {message}')
+
+    def _srv_estop(self, request: Trigger.Request, response: Trigger.Response):
+        if self._backend is None:
+            response.success, response.message = False, self._error
+            return response
+        self._estop = True
+        self._counts['emergency_stops'] += 1
+        response.message = 'emergency stop latched until ~/reset: ' + \
+            self._drive_safe('emergency_stop')
+        response.success = True
+        self.get_logger().warning(response.message)
+        return response
+
+    def _srv_reset(self, request: Trigger.Request, response: Trigger.Response):
+        if not self._estop and not self._tripped:
+            response.success, response.message = True, 'nothing to reset'
+            return response
+        self._estop = False
+        self._tripped = False
+        self._last_excitation = None
+        if self._state == 'running':
+            self._restore_generator()
+        response.success = True
+        response.message = 'emergency stop released: outputs follow the excitation again'
+        return response
+
+    def _srv_start(self, request: Trigger.Request, response: Trigger.Response):
+        response.success, response.message = self._start()
+        return response
+
+    def _srv_stop(self, request: Trigger.Request, response: Trigger.Response):
+        self._cancel_retry()
+        response.success, response.message = self._stop()
+        return response
+
+    # -- controller interface ------------------------------------------------------------------
+
+    def _on_joint_command(self, msg: JointState) -> None:
+        if JOINT in msg.name and len(msg.effort) == len(msg.name):
+            self._set_command(float(msg.effort[msg.name.index(JOINT)]))
+        else:
+            self._counts['command_malformed'] += 1
+            self._last_error = f'joint_commands needs an effort for joint {JOINT!r}'
+
+    def _on_array_command(self, msg: Float64MultiArray) -> None:
+        if len(msg.data) == 1:
+            self._set_command(float(msg.data[0]))
+        else:
+            self._counts['command_malformed'] += 1
+            self._last_error = f'commands needs exactly 1 value (effort [N]), got {len(msg.data)}'
+
+    def _set_command(self, effort_N: float) -> None:
+        if not math.isfinite(effort_N):
+            self._counts['command_malformed'] += 1
+            self._last_error = f'effort command {effort_N!r} is not finite'
+            return
+        with self._lock:
+            self._command_N = effort_N
+            self._command_time = time.monotonic()
+
+    def _publish_states(self, block: Block) -> None:
+        rate = self._runtime['state_rate_Hz']
+        if rate <= 0.0:
+            return
+        step = max(1, int(round(self._rate / rate)))
+        s = block.samples
+        n = block.n_samples
+        if 'position_m' in self._row:
+            position = s[self._row['position_m']]
+        elif 'sensor_V' in self._row:
+            position = np.asarray(self._balance.sensor.position_m(s[self._row['sensor_V']]))
+        else:
+            position = np.full(n, np.nan)
+        self._last_position_m = float(position[-1]) if np.isfinite(position[-1]) else 0.0
+        velocity = np.gradient(position) * self._rate if n > 1 else np.zeros(n)
+        if 'coil_force_N' in self._row:
+            effort = s[self._row['coil_force_N']]
+        elif 'coil_current_A' in self._row:
+            effort = np.asarray(self._balance.motor.force_N(s[self._row['coil_current_A']],
+                                                            position))
+        else:
+            effort = np.full(n, np.nan)
+        # first index of the block is a multiple of nothing in particular: keep the grid
+        start = (-block.first_sample_index) % step
+        for i in range(start, n, step):
+            ns = self._start_time_ns + int(round((block.first_sample_index + i) * 1e9
+                                                 / self._rate))
+            msg = JointState()
+            msg.header.stamp = Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+            msg.name = [JOINT]
+            msg.position = [float(position[i])]
+            msg.velocity = [float(velocity[i])]
+            msg.effort = [float(effort[i])]
+            self._pub_state.publish(msg)
+
+    # -- descriptions and diagnostics ----------------------------------------------------------
+
+    def _make_publishers(self) -> None:
+        qos = BLOCK_QOS
+        depth = self._param('publisher_depth')
+        if isinstance(depth, int) and not isinstance(depth, bool) and 1 <= depth <= 100000:
+            qos = QoSProfile(history=BLOCK_QOS.history, depth=depth,
+                             reliability=BLOCK_QOS.reliability,
+                             durability=BLOCK_QOS.durability)
+        elif not self._error:
+            self._error = f'configuration refused: publisher_depth must be an integer from 1 ' \
+                          f'to 100000, got {depth!r}'
+            self._state = 'error'
+        self._pub['measurements'] = self.create_publisher(Float64MultiArray, 'measurements',
+                                                          qos)
+        self._pub_desc['measurements'] = self.create_publisher(
+            String, 'measurements/description', LATCHED_QOS)
+        if self._param('publish_groups') and self._config is not None:
+            for group in self._groups:
+                topic = f'measurements/{group}'
+                self._pub[topic] = self.create_publisher(Float64MultiArray, topic, qos)
+                self._pub_desc[topic] = self.create_publisher(String, f'{topic}/description',
+                                                              LATCHED_QOS)
+
+    def _publish_descriptions(self) -> None:
+        if self._config is None:
+            return
+        cfg = self._config
+        channels = tuple(Channel(c.name, c.unit, f'device input {i}: code * {c.scale:g} + '
+                                                 f'{c.offset:g} {c.unit}')
+                         for i, c in enumerate(cfg.inputs))
+        extra = {'backend': getattr(self._backend, 'name', ''), 'excitation_mode': self._mode,
+                 'start_monotonic_ns': int(self._anchor_ns),
+                 'excitation_epoch': self._exc_tracker.epoch,
+                 'excitation_offset_samples': self._offset,
+                 'outputs': [{'name': c.name, 'min_V': c.min_V, 'max_V': c.max_V,
+                              'safe_V': c.safe_V} for c in cfg.outputs]}
+        if getattr(self._backend, 'name', '') == 'replay':
+            extra['replay_bag'] = self._backend.bag
+            extra['replay_topic'] = self._backend.topic
+        epoch = self._epoch or 0
+        for topic, pub in self._pub_desc.items():
+            rows = range(len(channels)) if topic == 'measurements' else \
+                self._groups[topic[13:]]
+            pub.publish(description_to_msg(StreamDescription(
+                topic.rsplit('/', 1)[-1], self._rate, cfg.block_size,
+                tuple(channels[i] for i in rows), epoch=epoch,
+                start_time_ns=self._start_time_ns, source=self.get_fully_qualified_name(),
+                extra=extra)))
+
+    def diagnostic_values(self) -> Dict[str, Any]:
+        """
+        Everything /diagnostics reports, as one mapping.
+
+        Returns
+        -------
+        dict
+            Counter and state names (units in the names) to values.
+        """
+        values: Dict[str, Any] = {'state': self._state,
+                                  'backend': str(self._param('backend')),
+                                  'excitation_mode': str(self._param('excitation_mode'))}
+        if self._backend is not None:
+            try:
+                values.update(self._backend.health())
+            except (DeviceError, OSError) as exc:
+                values['health_error'] = str(exc)
+        tracker = self._exc_tracker.counters()
+        values.update({f'excitation_{k}': v for k, v in tracker.items() if k != 'blocks'})
+        q = self._queue.counters()
+        values.update({'excitation_underrun_samples': q['underrun_samples'],
+                       'excitation_gap_filled_samples': q['gap_filled_samples'],
+                       'excitation_queued_samples': q['queued_samples']})
+        for key in ('excitation_blocks', 'excitation_malformed', 'excitation_late_samples',
+                    'clamped_samples', 'watchdog_trips', 'emergency_stops',
+                    'command_watchdog_trips', 'command_malformed', 'published_blocks',
+                    'published_samples', 'published_gaps', 'published_missing_samples',
+                    'dropped_out_of_order_blocks', 'malformed_blocks', 'reader_errors',
+                    'setpoint_samples_written', 'setpoint_late_samples',
+                    'setpoint_write_errors', 'epoch_changes', 'excitation_dropped_estop'):
+            values[key] = self._counts.get(key, 0)
+        for key in ('watchdog_trip_device_index', 'emergency_stop_device_index'):
+            if key in self._counts:
+                values[key] = self._counts[key]
+        lat = list(self._latency_ns)
+        age = list(self._age_ns)
+        med, p99 = _percentiles_us(lat)
+        age_med, age_p99 = _percentiles_us(age)
+        values.update({'watchdog_tripped': int(self._tripped),
+                       'emergency_stop': int(self._estop),
+                       'sample_rate_Hz': self._rate if self._config is not None else 0.0,
+                       'stream_epoch': self._epoch if self._epoch is not None else -1,
+                       'device_next_index': self._last_end or 0,
+                       'excitation_offset_samples': self._offset
+                       if self._offset is not None else '',
+                       'command_N': self._command_N,
+                       'latency_blocks': len(lat),
+                       'arrival_to_publish_median_us': f'{med:.1f}',
+                       'arrival_to_publish_p99_us': f'{p99:.1f}',
+                       'sample_age_at_publish_median_us': f'{age_med:.1f}',
+                       'sample_age_at_publish_p99_us': f'{age_p99:.1f}',
+                       'last_error': self._last_error, 'error': self._error})
+        return values
+
+    def _publish_diagnostics(self) -> None:
+        values = self.diagnostic_values()
+        defects = sum(int(values.get(k, 0) or 0) for k in (
+            'gaps', 'duplicates', 'reordered', 'corrupt', 'late', 'heartbeat_misses',
+            'reconnects', 'foreign', 'excitation_gaps', 'excitation_duplicates',
+            'excitation_reordered', 'excitation_overlaps', 'excitation_malformed',
+            'published_gaps', 'malformed_blocks'))
+        level = DiagnosticStatus.OK
+        message = 'ok'
+        if defects or values['clamped_samples']:
+            level, message = DiagnosticStatus.WARN, 'stream defects or clamped setpoints'
+        if self._tripped:
+            level, message = DiagnosticStatus.WARN, 'excitation watchdog tripped: outputs safe'
+        if self._estop:
+            level, message = DiagnosticStatus.ERROR, 'emergency stop latched: outputs safe'
+        if self._error or self._state == 'error':
+            level, message = DiagnosticStatus.ERROR, self._error or self._last_error
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [diagnostic_status(f'{self.get_name()}: device',
+                                        self.get_fully_qualified_name(), level, message,
+                                        values)]
+        self._pub_diag.publish(msg)
+
+
+def main(args: Optional[List[str]] = None) -> int:
+    """
+    Run the daq_bridge node until shutdown.
+
+    Parameters
+    ----------
+    args : list of str, optional
+        Command-line arguments (``--ros-args ...``).
+
+    Returns
+    -------
+    int
+        Process exit code.
+    """
+    return run_node(DaqBridgeNode, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
