@@ -156,7 +156,8 @@ class NodeProcess:
         str
             Its stdout and stderr.
         """
-        self.stdout.flush()
+        if not self.stdout.closed:
+            self.stdout.flush()
         return self.stdout_path.read_text(errors='replace')
 
     def alive(self) -> bool:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 from typing import Callable, List, Optional
 
 import rclpy
@@ -33,6 +34,9 @@ def run_node(factory: Callable[[], Node], args: Optional[List[str]] = None) -> i
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        # A second Ctrl-C must not cut the cleanup short (the recorder closes its bag here):
+        # from now on SIGINT is ignored; the cleanup is short and bounded.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

@@ -436,7 +436,8 @@ def test_cli_prints_its_port_serves_and_dies_as_injected(backends):
                              '0', '--seed', '1', '--faults', 'die_after_s=1.5'],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        ready, _, _ = select.select([proc.stdout], [], [], 30.0)
+        # Generous: a fresh install compiles the simulator kernel (numba) at first use.
+        ready, _, _ = select.select([proc.stdout], [], [], 180.0)
         assert ready, 'no port printed'
         port = int(proc.stdout.readline())
         backend = backends(port)

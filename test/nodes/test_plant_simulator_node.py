@@ -201,4 +201,4 @@ def test_separate_process_refuses_bad_parameters(tmp_path, processes, executor, 
     assert set_one('load_mass_kg', 0.1).successful
     assert set_one('load_changer_coupled', True).successful
     assert proc.alive()
-    assert proc.stop() == 0
+    assert proc.stop() == 0, proc.output()

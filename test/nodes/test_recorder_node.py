@@ -361,7 +361,7 @@ def test_full_disk_is_a_reported_error_and_the_process_stays_up(tmp_path, proces
     assert s.first_sample_index == 0 and s.gaps == [] and s.n_samples >= 3 * 20000
     np.testing.assert_array_equal(s.samples, signal_samples(0, s.n_samples))
     assert 'File too large' in proc.output()
-    assert proc.stop() == 0
+    assert proc.stop() == 0, proc.output()
     assert proc.proc.returncode in (0, -signal.SIGINT)
 
 
@@ -428,7 +428,7 @@ def test_records_the_real_signal_generator_with_its_experiment(
     assert generator['experiment_file'] == str(experiment_file)
     rosbags_counts, mcap_counts = independent_read_counts(bag)
     assert rosbags_counts == mcap_counts
-    assert proc.stop() == 0
+    assert proc.stop() == 0, proc.output()
 
 
 def test_use_sim_time_stamps_messages_with_the_simulated_clock(executor, ros_context,

@@ -227,7 +227,7 @@ def test_separate_process_wall_paced_refuses_bad_parameters(tmp_path, processes,
     np.testing.assert_array_equal(
         np.concatenate([b.samples for b in listener.blocks], axis=1), expected_samples())
     assert listener.description.block_size == 200
-    assert proc.stop() == 0
+    assert proc.stop() == 0, proc.output()
 
 
 @pytest.mark.slow
@@ -254,4 +254,4 @@ def test_invalid_experiment_at_startup_keeps_node_alive(tmp_path, processes, exe
     assert ros_harness.spin_until(
         executor, lambda: listener.done is True and listener.received() == 833, TIMEOUT_S)
     assert proc.alive()
-    assert proc.stop() == 0
+    assert proc.stop() == 0, proc.output()
