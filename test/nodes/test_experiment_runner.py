@@ -5,6 +5,7 @@ Runs ``emfc-experiment`` as users do (a separate process, the shipped default pl
 checks every output file and the recorded samples.
 """
 
+import json
 from pathlib import Path
 import shutil
 import subprocess
@@ -33,8 +34,15 @@ def test_default_job_produces_all_outputs_and_an_exact_bag(tmp_path):
                             timeout=900, env=ros_harness.child_environment(), cwd=tmp_path)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     for name in ('experiment.yaml', 'run.yaml', 'timing.json', 'summary.md',
-                 'bag/metadata.yaml', 'bag/bag_0.mcap'):
+                 'bag/metadata.yaml', 'bag/bag_0.mcap', 'identification/results.yaml',
+                 'identification/summary.md', 'identification/bode_coil_chirp.coil.png',
+                 'identification/bode_load_changer_chirp.pan.png'):
         assert (out / name).is_file(), name
+    results = yaml.safe_load((out / 'identification' / 'results.yaml').read_text())
+    assert results['n_samples'] == 490000
+    assert results['greybox'] is not None and results['static_characteristics'] is not None
+    timing = json.loads((out / 'timing.json').read_text())
+    assert {'experiment', 'identify', 'report', 'total'} <= set(timing)
     assert '100.0 %' in result.stdout              # the progress display reached the end
 
     plan = load_plan(config_file('experiment_default.yaml'))
