@@ -197,7 +197,7 @@ def test_shipped_trajectory_loads():
     assert [s.n_samples for s in exp.sections] == [100000] * 4
     assert exp.total_samples == 400000
     peaks = [np.abs(exp.block(exp.section_start(i), 100000)).max(axis=1) for i in range(4)]
-    np.testing.assert_allclose(peaks, [[0.01, 0.0], [0.0, 0.3], [0.005, 0.2], [0.002, 0.2]],
+    np.testing.assert_allclose(peaks, [[0.0025, 0.0], [0.0, 0.3], [0.0015, 0.2], [0.0015, 0.2]],
                                rtol=1e-6)
     assert set(yaml.safe_load(SHIPPED.read_text())) == {'/**'}
 

@@ -20,11 +20,12 @@ from emfc_ros.core.model.parameters import BalanceParameters
 from emfc_ros.core.signals.experiment import ChannelPlan, Experiment, Section
 from emfc_ros.core.sim import hold_point, Simulator
 
-#: Gains (``channel`` or ``section.channel`` keys) that keep the shipped trajectory
-#: (config/identification_trajectory.yaml) inside the sensor range (+/-100 um) on the default
-#: balance loaded with the balancing mass; see docs/identification_results.md for the peaks.
-DEFAULT_TRAJECTORY_GAINS = {'coil_chirp.coil': 0.25, 'coil_chirp_load_changer_steps.coil': 0.3,
-                            'load_changer_chirp_coil_steps.coil': 0.75}
+#: Gains (``channel`` or ``section.channel`` keys) applied to the shipped trajectory
+#: (config/identification_trajectory.yaml). Empty: its amplitudes (2.5 mV and 1.5 mV on the
+#: coil) already keep the default balance, loaded with the balancing mass, inside the sensor
+#: range (+/-100 um); they were set from this module's earlier gains 0.25, 0.3 and 0.75 on
+#: 10 mV, 5 mV and 2 mV. See docs/identification_results.md for the peaks.
+DEFAULT_TRAJECTORY_GAINS: dict = {}
 
 #: Block size of the simulation [samples].
 BLOCK_SAMPLES = 100000

@@ -2,8 +2,9 @@
 The simulator's per-sample chain: DAC, hold, amplifiers, motor, RK4 mechanics, stops, sensor, ADC.
 
 Written once, in the subset of Python that numba compiles: :mod:`emfc_ros.core.sim.simulator`
-runs :func:`chain_block` either compiled with ``numba.njit(cache=True)`` or interpreted (the
-pure Python/numpy fallback, same math, slow). Keep it free of anything numba cannot type.
+runs :func:`chain_block` either compiled with ``numba.njit(cache=True, fastmath=True)`` or
+interpreted (the pure Python/numpy fallback, same math, slow). Keep it free of anything numba
+cannot type.
 
 Chain per sample ``n`` (period ``dt``, see ``docs/simulator.md``):
 
@@ -19,6 +20,12 @@ Chain per sample ``n`` (period ``dt``, see ``docs/simulator.md``):
 6. outputs at ``t_n``, before integrating the interval: sensor ``U(clip(y + noise_y, range))``
    through the ADC, the current monitors (``monitor_V_per_A I``) through the ADC, and the
    quantities a user computes from them.
+
+Layout for speed (``docs/simulator.md``, section Performance): the block is worked in chunks of
+``CHUNK`` samples, each in three passes, so that the latency-bound mechanics loop carries no
+other work: (a) the noise of the chunk, the DAC, amplifiers and pan force, (b) the RK4 steps,
+(c) the sensor, ADC and outputs. Sine and cosine are short Taylor polynomials while every stage
+of an RK4 step has ``|q1| + |q2| < SMALL_ANGLE_RAD``, otherwise the step is recomputed with libm.
 """
 
 import math
@@ -52,6 +59,9 @@ ONE = np.uint64(1)
 TWO = np.uint64(2)
 THREE = np.uint64(3)
 INV_2_POW_53 = 1.0 / 9007199254740992.0
+# Exponent bits of a float64: all set for inf and nan (tested on the bits: fastmath assumes
+# finite floats, so a floating-point test could be optimised away).
+EXP_MASK = np.int64(0x7FF0000000000000)
 P_LOW = 0.02425
 A0, A1, A2 = -3.969683028665376e+01, 2.209460984245205e+02, -2.759285104469687e+02
 A3, A4, A5 = 1.383577518672690e+02, -3.066479806614716e+01, 2.506628277459239e+00
@@ -64,10 +74,13 @@ D0, D1, D2, D3 = 7.784695709041462e-03, 3.224671290700398e-01, 2.445134137142996
 
 MM_PER_M = 1.0e3
 
-#: Below this angle [rad] sin and cos use short Taylor polynomials (the first omitted terms,
-#: x**7 / 5040 and x**6 / 720, are below 3e-18 relative and 3e-17 there); the stops keep the
-#: angles below about 3e-3 rad.
+#: While ``|q1| + |q2|`` [rad] stays below this at every stage of an RK4 step (so do
+#: ``|q1|``, ``|q2|`` and ``|q2 - q1|``), sine and cosine are short Taylor polynomials: the first
+#: omitted terms, x**7 / 5040 and x**6 / 720, are below 3e-18 relative and 3e-17 there, i.e.
+#: below the rounding of the libm values. Otherwise the step is redone with ``math.sin/cos``.
 SMALL_ANGLE_RAD = 5.0e-3
+#: Samples per chunk of the three passes (scratch arrays of this length stay in the L1 cache).
+CHUNK = 256
 
 
 def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps, par,
@@ -101,7 +114,16 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
         when ``quantise``; without quantisation the inverse is solved by Newton's method.
     out : ndarray, shape (N_MEASURED or N_OUT, n)
         Filled with the output channels (rows above).
+
+    Returns
+    -------
+    bool
+        False, with nothing simulated or changed, if ``u`` holds a value that is not finite.
     """
+    bits = u.view(np.int64)
+    for n in range(u.shape[1]):
+        if (bits[0, n] & EXP_MASK) == EXP_MASK or (bits[1, n] & EXP_MASK) == EXP_MASK:
+            return False
     l1 = par[rk4.L1]
     l2 = par[rk4.L2]
     l3 = par[rk4.L3]
@@ -110,21 +132,23 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
     c2 = par[rk4.C2]
     d1 = par[rk4.D1]
     d2 = par[rk4.D2]
-    c12 = c1 + c2
-    d12 = d1 + d2
-    r1 = par[rk4.R1]
-    h1 = par[rk4.H1]
-    r2 = par[rk4.R2]
-    h2 = par[rk4.H2]
     m3l3 = par[rk4.M3] * l3
     f_off = par[rk4.F_OFF]
-    a = par[rk4.M3] * l3 + par[rk4.M2] * r2
-    b = par[rk4.M2] * h2
+    a = par[rk4.M3] * l3 + par[rk4.M2] * par[rk4.R2]
+    b = par[rk4.M2] * par[rk4.H2]
+    l2a = l2 * a
+    l2b = l2 * b
     m11 = par[rk4.J1] + par[rk4.MP] * l1 * l1 + (par[rk4.M2] + par[rk4.M3]) * l2 * l2
     m22 = par[rk4.J2] + par[rk4.M3] * l3 * l3
+    m11m22 = m11 * m22
     arm1 = (par[rk4.M2] + par[rk4.M3]) * l2 - par[rk4.MP] * l1
     gm1 = g * par[rk4.M1]
     gm2 = g * par[rk4.M2]
+    # gravity torques g1 = gk1 cos q1 - gs1 sin q1, g2 = gk2 cos q2 - gs2 sin q2
+    gk1 = gm1 * par[rk4.R1] + g * arm1
+    gs1 = gm1 * par[rk4.H1]
+    gk2 = gm2 * par[rk4.R2] + g * m3l3
+    gs2 = gm2 * par[rk4.H2]
     i_coil_max = par[rk4.I_COIL_MAX]
     i_lc_max = par[rk4.I_LC_MAX]
     stop = par[STOP_POS]
@@ -132,16 +156,50 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
     d_stop = par[STOP_D]
     sensor_range = par[SENSOR_RANGE]
     monitor = par[MONITOR]
+    dac_lsb = par[DAC_LSB]
+    dac_lo = par[DAC_LO]
+    dac_hi = par[DAC_HI]
+    dac_range = par[DAC_RANGE]
+    adc_lsb = par[ADC_LSB]
+    adc_lo = par[ADC_LO]
+    adc_hi = par[ADC_HI]
+    adc_range = par[ADC_RANGE]
+    noise_y = par[NOISE_Y]
+    noise_ic = par[NOISE_IC]
+    noise_ilc = par[NOISE_ILC]
     dt = par[DT]
     h = dt / substeps
+    hh = 0.5 * h
+    h6 = h / 6.0
     reference = out.shape[0] > N_MEASURED
-    motor_m = motor.copy()          # k(y) in powers of y in metres
-    for j in range(len(motor)):
+    # k(y) in powers of y in metres; up to a quadratic in scalars (zero padded: the same
+    # operations as Horner's scheme on the shorter polynomial)
+    n_motor = len(motor)
+    motor_m = np.zeros(max(n_motor, 3))
+    for j in range(n_motor):
         motor_m[j] = motor[j] * MM_PER_M ** j
+    km0 = motor_m[0]
+    km1 = motor_m[1]
+    km2 = motor_m[2]
+    short_motor = n_motor <= 3
 
     def horner(coeffs, v):
+        # sum_k coeffs[k] v**k; unrolled for up to 6 coefficients (the same operations)
+        m = len(coeffs)
+        if m == 3:
+            return coeffs[0] + v * (coeffs[1] + v * coeffs[2])
+        if m == 6:
+            return coeffs[0] + v * (coeffs[1] + v * (coeffs[2] + v * (
+                coeffs[3] + v * (coeffs[4] + v * coeffs[5]))))
+        if m == 2:
+            return coeffs[0] + v * coeffs[1]
+        if m == 4:
+            return coeffs[0] + v * (coeffs[1] + v * (coeffs[2] + v * coeffs[3]))
+        if m == 5:
+            return coeffs[0] + v * (coeffs[1] + v * (coeffs[2] + v * (
+                coeffs[3] + v * coeffs[4])))
         acc = 0.0
-        for k in range(len(coeffs) - 1, -1, -1):
+        for k in range(m - 1, -1, -1):
             acc = acc * v + coeffs[k]
         return acc
 
@@ -151,28 +209,27 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
             acc = acc * v + k * coeffs[k]
         return acc
 
-    def sincos(v):
-        if abs(v) < SMALL_ANGLE_RAD:
-            v2 = v * v
-            s = v + v * v2 * (-1.0 / 6.0 + v2 * (1.0 / 120.0))
-            c = 1.0 + v2 * (-0.5 + v2 * (1.0 / 24.0))
-            return s, c
-        return math.sin(v), math.cos(v)
+    def sin_small(v, v2):
+        return v + v * v2 * (-1.0 / 6.0 + v2 * (1.0 / 120.0))
+
+    def cos_small(v2):
+        return 1.0 + v2 * (-0.5 + v2 * (1.0 / 24.0))
 
     def convert(v, lsb, lo, hi, span):
-        # DAC or ADC: nearest code, clamped; without quantisation only the clamp.
+        # DAC or ADC: nearest code, clamped; returns (code * lsb, code), without
+        # quantisation only the clamp (and code 0).
         if quantise:
             code = float(math.floor(min(max(v / lsb, lo - 1.0), hi + 1.0) + 0.5))
             if code < lo:
                 code = lo
             elif code > hi:
                 code = hi
-            return code * lsb
-        return min(max(v, -span), span)
+            return code * lsb, code
+        return min(max(v, -span), span), 0.0
 
-    def sensor_inverse(v):
+    def sensor_inverse(v, code):
         if quantise:
-            return sensor_table[int(v / par[ADC_LSB] - par[ADC_LO] + 0.5)]
+            return sensor_table[int(code - adc_lo)]
         # Newton from the linear term; the characteristic is monotonic over the range.
         pos = (v - sensor[0]) / sensor[1]
         for _ in range(30):
@@ -182,15 +239,29 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
                 break
         return pos
 
-    def deriv(q1, q2, w1, w2, i_coil, f_pan):
-        s1, k1 = sincos(q1)
-        s2, k2 = sincos(q2)
-        sp = s2 * k1 - k2 * s1
-        cp = k2 * k1 + s2 * s1
-        m12 = l2 * (a * cp - b * sp)
-        dm12 = -l2 * (a * sp + b * cp)
+    def trig(q1, q2, taylor):
+        # sin and cos of q1, q2 and q2 - q1: short Taylor polynomials or libm
+        if taylor:
+            v1 = q1 * q1
+            v2 = q2 * q2
+            p = q2 - q1
+            vp = p * p
+            return (sin_small(q1, v1), cos_small(v1), sin_small(q2, v2), cos_small(v2),
+                    sin_small(p, vp), cos_small(vp))
+        return (math.sin(q1), math.cos(q1), math.sin(q2), math.cos(q2), math.sin(q2 - q1),
+                math.cos(q2 - q1))
+
+    def accel(q1, q2, w1, w2, i_coil, pan1, taylor):
+        # accelerations [q1'', q2''] at one RK4 stage; pan1 = l1 F_p - gk1
+        s1, k1, s2, k2, sp, cp = trig(q1, q2, taylor)
+        m12 = l2a * cp - l2b * sp
+        dm12 = -(l2a * sp + l2b * cp)
         y = l2 * s1 + l3 * s2
-        f_end = horner(motor_m, y) * i_coil + f_off
+        if short_motor:
+            k_y = km0 + y * (km1 + y * km2)
+        else:
+            k_y = horner(motor_m, y)
+        f_end = k_y * i_coil + f_off
         if y > stop:
             f_stop = -k_stop * (y - stop) - d_stop * (l2 * k1 * w1 + l3 * k2 * w2)
             if f_stop < 0.0:
@@ -199,18 +270,40 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
             f_stop = -k_stop * (y + stop) - d_stop * (l2 * k1 * w1 + l3 * k2 * w2)
             if f_stop > 0.0:
                 f_end += f_stop
-        g1 = gm1 * (r1 * k1 - h1 * s1) + g * arm1 * k1
-        g2 = gm2 * (r2 * k2 - h2 * s2) + g * m3l3 * k2
-        # the coil force's share last: it ends the longest dependency chain
-        rest1 = (k1 * l1 * f_pan - dm12 * w2 * w2 - g1
-                 - c12 * q1 + c2 * q2 - d12 * w1 + d2 * w2)
-        rest2 = dm12 * w1 * w1 - g2 + c2 * q1 - c2 * q2 + d2 * w1 - d2 * w2
-        e1 = k1 * l2
-        e2 = k2 * l3
-        inv_det = 1.0 / (m11 * m22 - m12 * m12)
-        return (w1, w2,
-                (m22 * rest1 - m12 * rest2) * inv_det + (m22 * e1 - m12 * e2) * inv_det * f_end,
-                (m11 * rest2 - m12 * rest1) * inv_det + (m11 * e2 - m12 * e1) * inv_det * f_end)
+        # generalised forces without the lever-end force, then its share (the latest input)
+        spring = c2 * (q1 - q2) + d2 * (w1 - w2)
+        r1 = k1 * pan1 + gs1 * s1 - dm12 * w2 * w2 - c1 * q1 - d1 * w1 - spring
+        r2 = dm12 * w1 * w1 - gk2 * k2 + gs2 * s2 + spring
+        r1 = r1 + l2 * k1 * f_end
+        r2 = r2 + l3 * k2 * f_end
+        inv_det = 1.0 / (m11m22 - m12 * m12)
+        return (m22 * r1 - m12 * r2) * inv_det, (m11 * r2 - m12 * r1) * inv_det, y
+
+    def rk4_step(q1, q2, w1, w2, ic0, icm, ic1, pan0, panm, pan1, taylor):
+        # one RK4 step; also the lever-end position at its start and the largest
+        # |q1| + |q2| of the stages (the Taylor polynomials' argument bound)
+        e1, f1, y0 = accel(q1, q2, w1, w2, ic0, pan0, taylor)
+        a2 = w1 + hh * e1
+        b2 = w2 + hh * f1
+        q1b = q1 + hh * w1
+        q2b = q2 + hh * w2
+        e2, f2, _ = accel(q1b, q2b, a2, b2, icm, panm, taylor)
+        a3 = w1 + hh * e2
+        b3 = w2 + hh * f2
+        q1c = q1 + hh * a2
+        q2c = q2 + hh * b2
+        e3, f3, _ = accel(q1c, q2c, a3, b3, icm, panm, taylor)
+        a4 = w1 + h * e3
+        b4 = w2 + h * f3
+        q1d = q1 + h * a3
+        q2d = q2 + h * b3
+        e4, f4, _ = accel(q1d, q2d, a4, b4, ic1, pan1, taylor)
+        bound = max(max(abs(q1) + abs(q2), abs(q1b) + abs(q2b)),
+                    max(abs(q1c) + abs(q2c), abs(q1d) + abs(q2d)))
+        return (q1 + h6 * (w1 + 2.0 * a2 + 2.0 * a3 + a4),
+                q2 + h6 * (w2 + 2.0 * b2 + 2.0 * b3 + b4),
+                w1 + h6 * (e1 + 2.0 * e2 + 2.0 * e3 + e4),
+                w2 + h6 * (f1 + 2.0 * f2 + 2.0 * f3 + f4), y0, bound)
 
     def splitmix(counter):
         z = noise_key + counter * GOLDEN
@@ -218,105 +311,162 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
         z = (z ^ (z >> SHIFT27)) * MIX2
         return z ^ (z >> SHIFT31)
 
-    def normal(z):
-        # Acklam's rational approximation of the inverse normal CDF (relative error 1.2e-9)
-        p = (float(z >> SHIFT11) + 0.5) * INV_2_POW_53
-        if p < P_LOW or p > 1.0 - P_LOW:
-            q = math.sqrt(-2.0 * math.log(min(p, 1.0 - p)))
-            v = ((((((C0 * q + C1) * q + C2) * q + C3) * q + C4) * q + C5)
-                 / ((((D0 * q + D1) * q + D2) * q + D3) * q + 1.0))
-            return v if p < 0.5 else -v
+    def uniform(counter):
+        # p in (0, 1) from the SplitMix64 output at ``counter``
+        return (float(np.int64(splitmix(counter) >> SHIFT11)) + 0.5) * INV_2_POW_53
+
+    def normal_central(p):
+        # Acklam's rational approximation of the inverse normal CDF, P_LOW <= p <= 1 - P_LOW
         q = p - 0.5
         r = q * q
         return ((((((A0 * r + A1) * r + A2) * r + A3) * r + A4) * r + A5) * q
                 / (((((B0 * r + B1) * r + B2) * r + B3) * r + B4) * r + 1.0))
 
+    def normal_tail(p):
+        # the same outside, p < P_LOW or p > 1 - P_LOW (relative error 1.2e-9 overall)
+        q = math.sqrt(-2.0 * math.log(min(p, 1.0 - p)))
+        v = ((((((C0 * q + C1) * q + C2) * q + C3) * q + C4) * q + C5)
+             / ((((D0 * q + D1) * q + D2) * q + D3) * q + 1.0))
+        return v if p < 0.5 else -v
+
+    def normals(counter0, z, p_tmp):
+        # z[k] = standard normal at counter0 + k: a branch-free pass, then the tails
+        for k in range(len(z)):
+            p = uniform(counter0 + np.uint64(k))
+            p_tmp[k] = p
+            z[k] = normal_central(p)
+        for k in range(len(z)):
+            p = p_tmp[k]
+            if p < P_LOW or p > 1.0 - P_LOW:
+                z[k] = normal_tail(p)
+
     def current(coeffs, v, n_i, limit):
         return min(max(horner(coeffs, v) + n_i, -limit), limit)
 
+    n_total = u.shape[1]
+    chunk = min(n_total, CHUNK)
+    i_c = np.empty(chunk)
+    i_l = np.empty(chunk)
+    f_p = np.empty(chunk)
+    v_c = np.empty(chunk)
+    v_l = np.empty(chunk)
+    n_c = np.empty(chunk)
+    n_l = np.empty(chunk)
+    y_true = np.empty(chunk)
+    z = np.empty(3 * chunk)
+    p_tmp = np.empty(3 * chunk)
     q1 = x[0]
     q2 = x[1]
     w1 = x[2]
     w2 = x[3]
     p_coil = prev[0]
     p_lc = prev[1]
-    n_y = 0.0
-    n_ic = 0.0
-    n_ilc = 0.0
-    for n in range(u.shape[1]):
-        v_coil = convert(u[0, n], par[DAC_LSB], par[DAC_LO], par[DAC_HI], par[DAC_RANGE])
-        v_lc = convert(u[1, n], par[DAC_LSB], par[DAC_LO], par[DAC_HI], par[DAC_RANGE])
+    for start in range(0, n_total, CHUNK):
+        stop_n = min(start + CHUNK, n_total)
         if use_noise:
-            counter = np.uint64(first + n) * THREE
-            n_y = normal(splitmix(counter + ONE)) * par[NOISE_Y]
-            n_ic = normal(splitmix(counter + TWO)) * par[NOISE_IC]
-            n_ilc = normal(splitmix(counter + THREE)) * par[NOISE_ILC]
-        if foh:
-            i_coil = current(amp_coil, p_coil, n_ic, i_coil_max)
-            i_lc = current(amp_lc, p_lc, n_ilc, i_lc_max)
-        else:
-            i_coil = current(amp_coil, v_coil, n_ic, i_coil_max)
-            i_lc = current(amp_lc, v_lc, n_ilc, i_lc_max)
-        f_pan = horner(load_changer, i_lc)
-        # outputs at t_n
-        s1, k1 = sincos(q1)
-        s2, k2 = sincos(q2)
-        y = l2 * s1 + l3 * s2
-        y_meas = min(max(y + n_y, -sensor_range), sensor_range)
-        sensor_V = convert(horner(sensor, y_meas), par[ADC_LSB], par[ADC_LO], par[ADC_HI],
-                           par[ADC_RANGE])
-        pos = sensor_inverse(sensor_V)
-        i_coil_meas = convert(monitor * i_coil, par[ADC_LSB], par[ADC_LO], par[ADC_HI],
-                              par[ADC_RANGE]) / monitor
-        i_lc_meas = convert(monitor * i_lc, par[ADC_LSB], par[ADC_LO], par[ADC_HI],
-                            par[ADC_RANGE]) / monitor
-        out[OUT_U_COIL, n] = v_coil
-        out[OUT_U_LC, n] = v_lc
-        out[OUT_I_COIL, n] = i_coil_meas
-        out[OUT_I_LC, n] = i_lc_meas
-        out[OUT_SENSOR, n] = sensor_V
-        out[OUT_POS, n] = pos
-        out[OUT_F_COIL, n] = horner(motor, pos * MM_PER_M) * i_coil_meas
-        out[OUT_F_LC, n] = horner(load_changer, i_lc_meas)
-        if reference:
-            out[OUT_POS_TRUE, n] = y
-            out[OUT_F_PAN, n] = f_pan
-            out[OUT_F_COIL_TRUE, n] = horner(motor, y * MM_PER_M) * i_coil
-        # integrate [t_n, t_n + dt)
-        ic0 = i_coil
-        icm = i_coil
-        ic1 = i_coil
-        fp0 = f_pan
-        fpm = f_pan
-        fp1 = f_pan
-        for s in range(substeps):
+            normals(np.uint64(first + start) * THREE + ONE, z[:3 * (stop_n - start)], p_tmp)
+        # 1. DAC, amplifiers, pan force (independent of the state)
+        for j in range(stop_n - start):
+            n = start + j
+            v_coil = convert(u[0, n], dac_lsb, dac_lo, dac_hi, dac_range)[0]
+            v_lc = convert(u[1, n], dac_lsb, dac_lo, dac_hi, dac_range)[0]
+            n_ic = 0.0
+            n_ilc = 0.0
+            if use_noise:
+                n_ic = z[3 * j + 1] * noise_ic
+                n_ilc = z[3 * j + 2] * noise_ilc
             if foh:
-                # the ramp at the substep's middle and end (its start is the last end)
-                fm = (s + 0.5) / substeps
-                fb = (s + 1.0) / substeps
-                icm = current(amp_coil, p_coil + fm * (v_coil - p_coil), n_ic, i_coil_max)
-                ic1 = current(amp_coil, p_coil + fb * (v_coil - p_coil), n_ic, i_coil_max)
-                fpm = horner(load_changer, current(amp_lc, p_lc + fm * (v_lc - p_lc), n_ilc,
-                                                   i_lc_max))
-                fp1 = horner(load_changer, current(amp_lc, p_lc + fb * (v_lc - p_lc), n_ilc,
-                                                   i_lc_max))
-            a1, b1, e1, f1 = deriv(q1, q2, w1, w2, ic0, fp0)
-            a2, b2, e2, f2 = deriv(q1 + 0.5 * h * a1, q2 + 0.5 * h * b1,
-                                   w1 + 0.5 * h * e1, w2 + 0.5 * h * f1, icm, fpm)
-            a3, b3, e3, f3 = deriv(q1 + 0.5 * h * a2, q2 + 0.5 * h * b2,
-                                   w1 + 0.5 * h * e2, w2 + 0.5 * h * f2, icm, fpm)
-            a4, b4, e4, f4 = deriv(q1 + h * a3, q2 + h * b3, w1 + h * e3, w2 + h * f3, ic1, fp1)
-            q1 = q1 + h / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-            q2 = q2 + h / 6.0 * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
-            w1 = w1 + h / 6.0 * (e1 + 2.0 * e2 + 2.0 * e3 + e4)
-            w2 = w2 + h / 6.0 * (f1 + 2.0 * f2 + 2.0 * f3 + f4)
-            ic0 = ic1
-            fp0 = fp1
-        p_coil = v_coil
-        p_lc = v_lc
+                i_c[j] = current(amp_coil, p_coil, n_ic, i_coil_max)
+                i_l[j] = current(amp_lc, p_lc, n_ilc, i_lc_max)
+            else:
+                i_c[j] = current(amp_coil, v_coil, n_ic, i_coil_max)
+                i_l[j] = current(amp_lc, v_lc, n_ilc, i_lc_max)
+            f_p[j] = horner(load_changer, i_l[j])
+            v_c[j] = v_coil
+            v_l[j] = v_lc
+            n_c[j] = n_ic
+            n_l[j] = n_ilc
+            p_coil = v_coil
+            p_lc = v_lc
+        # 2. the mechanics: the lever-end position at t_n, then integrate [t_n, t_n + dt)
+        for j in range(stop_n - start):
+            ic0 = i_c[j]
+            icm = ic0
+            ic1 = ic0
+            fp0 = f_p[j]
+            fpm = fp0
+            fp1 = fp0
+            if foh:
+                pc = v_c[j - 1] if j > 0 else prev[0]
+                pl = v_l[j - 1] if j > 0 else prev[1]
+                vc = v_c[j]
+                vl = v_l[j]
+                nic = n_c[j]
+                nil = n_l[j]
+            for s in range(substeps):
+                if foh:
+                    # the ramp at the substep's middle and end (its start is the last end)
+                    fm = (s + 0.5) / substeps
+                    fb = (s + 1.0) / substeps
+                    icm = current(amp_coil, pc + fm * (vc - pc), nic, i_coil_max)
+                    ic1 = current(amp_coil, pc + fb * (vc - pc), nic, i_coil_max)
+                    fpm = horner(load_changer, current(amp_lc, pl + fm * (vl - pl), nil,
+                                                       i_lc_max))
+                    fp1 = horner(load_changer, current(amp_lc, pl + fb * (vl - pl), nil,
+                                                       i_lc_max))
+                pan0 = l1 * fp0 - gk1
+                panm = l1 * fpm - gk1
+                pan1 = l1 * fp1 - gk1
+                n1, n2, n3, n4, y0, bound = rk4_step(q1, q2, w1, w2, ic0, icm, ic1, pan0,
+                                                     panm, pan1, True)
+                if bound >= SMALL_ANGLE_RAD:
+                    # outside the polynomials' range (at the stops, say): libm throughout
+                    n1, n2, n3, n4, y0, bound = rk4_step(q1, q2, w1, w2, ic0, icm, ic1, pan0,
+                                                         panm, pan1, False)
+                if s == 0:
+                    y_true[j] = y0
+                q1 = n1
+                q2 = n2
+                w1 = n3
+                w2 = n4
+                ic0 = ic1
+                fp0 = fp1
+        if foh:     # the next chunk's ramp starts at this chunk's last DAC values
+            prev[0] = v_c[stop_n - start - 1]
+            prev[1] = v_l[stop_n - start - 1]
+        # 3. sensor, ADC, monitors and the user's quantities at t_n
+        for j in range(stop_n - start):
+            n = start + j
+            n_y = 0.0
+            if use_noise:
+                n_y = z[3 * j] * noise_y
+            y = y_true[j]
+            i_coil = i_c[j]
+            i_lc = i_l[j]
+            y_meas = min(max(y + n_y, -sensor_range), sensor_range)
+            sensor_V, sensor_code = convert(horner(sensor, y_meas), adc_lsb, adc_lo, adc_hi,
+                                            adc_range)
+            pos = sensor_inverse(sensor_V, sensor_code)
+            i_coil_meas = convert(monitor * i_coil, adc_lsb, adc_lo, adc_hi,
+                                  adc_range)[0] / monitor
+            i_lc_meas = convert(monitor * i_lc, adc_lsb, adc_lo, adc_hi, adc_range)[0] / monitor
+            out[OUT_U_COIL, n] = v_c[j]
+            out[OUT_U_LC, n] = v_l[j]
+            out[OUT_I_COIL, n] = i_coil_meas
+            out[OUT_I_LC, n] = i_lc_meas
+            out[OUT_SENSOR, n] = sensor_V
+            out[OUT_POS, n] = pos
+            out[OUT_F_COIL, n] = horner(motor, pos * MM_PER_M) * i_coil_meas
+            out[OUT_F_LC, n] = horner(load_changer, i_lc_meas)
+            if reference:
+                out[OUT_POS_TRUE, n] = y
+                out[OUT_F_PAN, n] = f_p[j]
+                out[OUT_F_COIL_TRUE, n] = horner(motor, y * MM_PER_M) * i_coil
     x[0] = q1
     x[1] = q2
     x[2] = w1
     x[3] = w2
-    prev[0] = p_coil
-    prev[1] = p_lc
+    if n_total > 0:
+        prev[0] = p_coil
+        prev[1] = p_lc
+    return True

@@ -360,19 +360,23 @@ class Simulator:
         if u.ndim != 2 or u.shape[0] != 2:
             raise ValueError(f'setpoints must have shape (2, n) (coil, load_changer), got '
                              f'shape {u.shape}')
-        if not np.all(np.isfinite(u)):
-            raise ValueError('setpoints must be finite')
         if self.hold not in HOLDS:
             raise ValueError(f'hold must be one of {HOLDS}, got {self.hold!r}')
         n = u.shape[1]
         out = np.empty((len(self.channel_names), n))
+        # the kernel refuses non-finite setpoints before it changes anything (cheaper than a
+        # numpy check for small blocks)
         if self.backend == 'numba':
-            par, coeffs = self._par, self._coeffs
+            ok = self._run(self._x, self._prev, u, self._index, self._noise_key,
+                           bool(self.noise), bool(self.quantisation), self.hold == 'foh',
+                           self.substeps, self._par, *self._coeffs, out)
         else:   # plain Python floats index faster when interpreted
             par, coeffs = self._par.tolist(), tuple(c.tolist() for c in self._coeffs)
-        with np.errstate(over='ignore'):   # the interpreted noise hash wraps around 2**64
-            self._run(self._x, self._prev, u, self._index, self._noise_key, bool(self.noise),
-                      bool(self.quantisation), self.hold == 'foh', self.substeps, par,
-                      *coeffs, out)
+            with np.errstate(over='ignore'):   # the interpreted noise hash wraps around 2**64
+                ok = self._run(self._x, self._prev, u, self._index, self._noise_key,
+                               bool(self.noise), bool(self.quantisation), self.hold == 'foh',
+                               self.substeps, par, *coeffs, out)
+        if not ok:
+            raise ValueError('setpoints must be finite')
         self._index += n
         return out
