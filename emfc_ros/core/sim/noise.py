@@ -1,7 +1,7 @@
 """
 Seeded, counter-based noise for the simulator: a pure function of the sample index and the seed.
 
-The simulator's kernel draws its noise per sample inside the loop
+The simulator's kernel draws its noise per chunk of samples inside the compiled loop
 (:func:`emfc_ros.core.sim.chain.chain_block`); this module derives the key from the seed and
 computes the same numbers vectorised in numpy (for tests, baselines and documentation).
 
