@@ -171,8 +171,19 @@ def test_faults_are_reported_and_no_wrong_sample_is_published(executor, ros_cont
         n_before = len(probe.blocks)
         assert ros_harness.spin_until(executor, lambda: len(probe.blocks) >= n_before + 20,
                                       TIMEOUT_S)
-        counters = emu.all_counters()
-        record = emulator_record(emu)
+    # The device has stopped: read what it sent, then let every block the bridge published
+    # reach the probe (the count stops growing), so that holes, records and the bridge's
+    # counters all describe the same stream.
+    counters = emu.all_counters()
+    record = emulator_record(emu)
+    seen = {'n': -1, 'since': time.monotonic()}
+
+    def settled():
+        if len(probe.blocks) != seen['n']:
+            seen['n'], seen['since'] = len(probe.blocks), time.monotonic()
+        return time.monotonic() - seen['since'] > 1.0
+
+    assert ros_harness.spin_until(executor, settled, TIMEOUT_S)
     firsts = [b[0] for b in probe.blocks]
     assert firsts == sorted(firsts) and len(set(firsts)) == len(firsts)
     for first, _, samples in probe.blocks:
