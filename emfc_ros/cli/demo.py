@@ -109,7 +109,7 @@ def run(out: Path, experiment_file: Optional[str], timeout_s: float) -> int:
         0 on success, 1 if the stream was incomplete or defective.
     """
     import rclpy
-    from rclpy.executors import MultiThreadedExecutor
+    from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
     from std_msgs.msg import Float64MultiArray, String, UInt64
     from std_srvs.srv import Trigger
@@ -149,7 +149,7 @@ def run(out: Path, experiment_file: Optional[str], timeout_s: float) -> int:
     monitor.create_subscription(String, 'signal_generator/status', on_status, LATCHED_QOS)
     start_client = monitor.create_client(Trigger, 'signal_generator/start')
     monitor.create_subscription(Float64MultiArray, 'excitation', on_block, BLOCK_QOS)
-    executor = MultiThreadedExecutor(num_threads=2)
+    executor = SingleThreadedExecutor()   # see emfc_ros/cli/experiment.py
     executor.add_node(generator)
     executor.add_node(monitor)
     t0 = time.monotonic()
