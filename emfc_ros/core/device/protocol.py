@@ -260,19 +260,8 @@ def decode_frame(data: bytes) -> Frame:
     ProtocolError
         On any malformed input (and only then).
     """
-    try:
-        data = bytes(data)
-    except (TypeError, ValueError) as exc:
-        raise ProtocolError(f'not bytes: {exc}') from None
-    if len(data) < FRAME_HEADER.size + CRC.size:
-        raise ProtocolError(f'frame of {len(data)} bytes is shorter than header and CRC')
-    magic, version, stream, fmt, _flags, seq, epoch, first, n_ch, n_s = \
-        FRAME_HEADER.unpack_from(data)
-    if magic != MAGIC_FRAME:
-        raise ProtocolError(f'bad frame magic {magic!r}')
-    if version != VERSION:
-        raise ProtocolError(f'unsupported frame version {version}')
-    _check_crc(data)
+    data, (stream, fmt, _flags, seq, epoch, first, n_ch, n_s) = _open_datagram(
+        data, FRAME_HEADER, MAGIC_FRAME, 'frame')
     if stream not in STREAMS:
         raise ProtocolError(f'unknown stream id {stream}')
     if fmt not in FORMAT_DTYPES:
@@ -289,6 +278,49 @@ def decode_frame(data: bytes) -> Frame:
     if fmt == FORMAT_FLOAT64 and not np.all(np.isfinite(samples)):
         raise ProtocolError('float64 frame holds non-finite samples')
     return Frame(stream, seq, epoch, first, samples)
+
+
+def _open_datagram(data: bytes, header: struct.Struct, magic: bytes,
+                   what: str) -> Tuple[bytes, tuple]:
+    """
+    Check what every datagram starts and ends with: size, magic, version, CRC.
+
+    Parameters
+    ----------
+    data : bytes
+        One datagram (anything bytes() accepts).
+    header : struct.Struct
+        Its header layout; the first two fields are magic and version.
+    magic : bytes
+        The expected magic.
+    what : str
+        ``'frame'`` or ``'control message'``, for the error messages.
+
+    Returns
+    -------
+    data : bytes
+        The datagram as bytes.
+    fields : tuple
+        The header fields after magic and version.
+
+    Raises
+    ------
+    ProtocolError
+        On any malformed input.
+    """
+    try:
+        data = bytes(data)
+    except (TypeError, ValueError) as exc:
+        raise ProtocolError(f'not bytes: {exc}') from None
+    if len(data) < header.size + CRC.size:
+        raise ProtocolError(f'{what} of {len(data)} bytes is shorter than header and CRC')
+    fields = header.unpack_from(data)
+    if fields[0] != magic:
+        raise ProtocolError(f'bad {what} magic {fields[0]!r}')
+    if fields[1] != VERSION:
+        raise ProtocolError(f'unsupported {what} version {fields[1]}')
+    _check_crc(data)
+    return data, fields[2:]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -389,18 +421,8 @@ def decode_message(data: bytes) -> Message:
     ProtocolError
         On any malformed input (and only then).
     """
-    try:
-        data = bytes(data)
-    except (TypeError, ValueError) as exc:
-        raise ProtocolError(f'not bytes: {exc}') from None
-    if len(data) < CONTROL_HEADER.size + CRC.size:
-        raise ProtocolError(f'control message of {len(data)} bytes is too short')
-    magic, version, mtype, kind, status, rid, length = CONTROL_HEADER.unpack_from(data)
-    if magic != MAGIC_CONTROL:
-        raise ProtocolError(f'bad control magic {magic!r}')
-    if version != VERSION:
-        raise ProtocolError(f'unsupported control version {version}')
-    _check_crc(data)
+    data, (mtype, kind, status, rid, length) = _open_datagram(
+        data, CONTROL_HEADER, MAGIC_CONTROL, 'control message')
     if len(data) != CONTROL_HEADER.size + length + CRC.size:
         raise ProtocolError(f'control length {len(data)} does not match body length {length}')
     if mtype not in MESSAGE_TYPES:
