@@ -1,0 +1,372 @@
+"""
+The balance in closed loop: the position controller inside the simulator's sample loop.
+
+As on the device's FPGA, the controller runs at its own sample rate (``rate_Hz``, 10 kHz by
+default) inside the simulation, never through ROS topics. The simulator's rate is an integer
+multiple ``M`` of it; at every controller sample the measured lever position (sensor, ADC and
+inverse characteristic, noise included) is read, the controller
+(:func:`emfc_ros.core.control.runtime.controller_step`) computes the coil force, the force is
+turned into a coil setpoint (inverse motor coefficient at the measured position, inverse
+amplifier) and applied ``delay_samples * M`` simulator samples later, held for ``M`` samples
+(zero-order hold at the controller rate, then the 16-bit DAC). This is the loop
+:func:`~emfc_ros.core.control.design.design_controller` designs for: controller, hold, delay,
+plant.
+
+The input of :meth:`ClosedLoopSimulator.step_block` stays ``(2, n)`` setpoints [V]: the coil row
+is added to the controller's output (closed-loop excitation), the load-changer row drives the
+load changer (load profiles). Two channels are appended to the simulator's:
+``coil_current_precise_A`` (the compensation current through the precise current channel:
+shunt, high-resolution ADC and its noise, see
+:class:`~emfc_ros.core.control.loop_config.CurrentChannelConfig`) and ``force_command_N``
+(the controller output applied at the sample).
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Optional, Tuple
+
+import numpy as np
+
+from emfc_ros.core.control.design import ControllerDesign, design_controller, plant_from_model
+from emfc_ros.core.control.loop_config import CurrentChannelConfig, LoopConfig
+from emfc_ros.core.control.runtime import controller_step, initial_state, pack_controller
+from emfc_ros.core.model.linear import linearise
+from emfc_ros.core.model.load import loaded
+from emfc_ros.core.sim import chain
+from emfc_ros.core.sim.converters import lsb_V
+from emfc_ros.core.sim.noise import standard_normals
+from emfc_ros.core.sim.simulator import _jitted, Simulator
+
+EXTRA_CHANNELS = ('coil_current_precise_A', 'force_command_N')
+EXTRA_UNITS = ('A', 'N')
+#: Added to the seed for the precise channel's noise stream (independent of the chain's).
+CHANNEL_SEED_OFFSET = 0x2545F4914F6CDD1D
+MM_PER_M = 1.0e3
+
+_LOOP_JIT: Optional[Callable] = None
+
+
+def loop_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps, par,
+               amp_coil, amp_lc, motor, sensor, load_changer, sensor_table, out, coef, cstate,
+               ring_V, ring_N, ratio, delay, setpoint_m, run_chain):
+    """
+    Simulate a block in closed loop, one simulator sample at a time.
+
+    Parameters
+    ----------
+    x, prev, first, noise_key, use_noise, quantise, foh, substeps, par, amp_coil, amp_lc,
+    motor, sensor, load_changer, sensor_table
+        As :func:`emfc_ros.core.sim.chain.chain_block`.
+    u : ndarray, shape (2, n)
+        Excitation [V]: added to the controller's coil setpoint; the load-changer setpoint.
+    out : ndarray, shape (chain.N_OUT + 2, n)
+        The chain's rows (reference rows included), then the true coil current [A] and the
+        applied force command [N].
+    coef, cstate : ndarray
+        Controller coefficients and state (updated).
+    ring_V, ring_N : ndarray
+        Coil setpoint [V] and force [N] for sample ``i`` at ``i % len(ring)`` (updated).
+    ratio : int
+        Simulator samples per controller sample.
+    delay : int
+        Delay of the controller output [simulator samples], >= 1.
+    setpoint_m : float
+        Position setpoint [m].
+    run_chain : callable
+        The chain (compiled or not).
+
+    Returns
+    -------
+    bool
+        False if ``u`` holds a value that is not finite (nothing simulated).
+    """
+    n_total = u.shape[1]
+    for j in range(n_total):
+        if not (np.isfinite(u[0, j]) and np.isfinite(u[1, j])):
+            return False
+    size = ring_V.shape[0]
+    u1 = np.empty((2, 1))
+    out1 = np.empty((chain.N_OUT, 1))
+    i_max = par[chain.rk4.I_COIL_MAX]
+    c0 = amp_coil[0]
+    c1 = amp_coil[1]
+    for j in range(n_total):
+        idx = first + j
+        slot = idx % size
+        u1[0, 0] = ring_V[slot] + u[0, j]
+        u1[1, 0] = u[1, j]
+        run_chain(x, prev, u1, idx, noise_key, use_noise, quantise, foh, substeps, par,
+                  amp_coil, amp_lc, motor, sensor, load_changer, sensor_table, out1)
+        for r in range(chain.N_OUT):
+            out[r, j] = out1[r, 0]
+        y_true = out1[chain.OUT_POS_TRUE, 0]
+        k_true = 0.0
+        for k in range(len(motor) - 1, -1, -1):
+            k_true = k_true * (y_true * MM_PER_M) + motor[k]
+        out[chain.N_OUT, j] = out1[chain.OUT_F_COIL_TRUE, 0] / k_true
+        out[chain.N_OUT + 1, j] = ring_N[slot]
+        if idx % ratio == 0:
+            y_meas = out1[chain.OUT_POS, 0]
+            force = controller_step(coef, cstate, setpoint_m - y_meas)
+            k_meas = 0.0
+            for k in range(len(motor) - 1, -1, -1):
+                k_meas = k_meas * (y_meas * MM_PER_M) + motor[k]
+            current = min(max(force / k_meas, -i_max), i_max)
+            # invert the amplifier I(U) (ascending powers) by Newton from the linear term
+            volt = (current - c0) / c1
+            for _ in range(4):
+                value = 0.0
+                slope = 0.0
+                for k in range(len(amp_coil) - 1, -1, -1):
+                    slope = slope * volt + value
+                    value = value * volt + amp_coil[k]
+                volt = volt - (value - current) / slope
+            for i in range(ratio):
+                ring_V[(idx + delay + i) % size] = volt
+                ring_N[(idx + delay + i) % size] = force
+    return True
+
+
+def _loop_jitted() -> Callable:
+    global _LOOP_JIT
+    if _LOOP_JIT is None:
+        import numba
+        _LOOP_JIT = numba.njit(cache=True)(loop_block)
+    return _LOOP_JIT
+
+
+def design_for(simulator: Simulator, config: LoopConfig) -> ControllerDesign:
+    """
+    Design the controller of a loop configuration on the simulated balance's linear model.
+
+    Parameters
+    ----------
+    simulator : Simulator
+        The simulator (its parameters give the model).
+    config : LoopConfig
+        The loop.
+
+    Returns
+    -------
+    ControllerDesign
+        Controller and margins.
+    """
+    model = linearise(loaded(simulator.params.mechanics, config.design_load_mass_kg,
+                             simulator.load_changer_coupled))
+    return design_controller(plant_from_model(model), config.rate_Hz, config.crossover_Hz,
+                             config.phase_margin_deg, delay_samples=config.delay_samples,
+                             notch_Hz=config.notch_Hz, notch_quality=config.notch_quality)
+
+
+class ClosedLoopSimulator:
+    """
+    The simulated balance with the position controller in its sample loop.
+
+    Parameters
+    ----------
+    simulator : Simulator
+        The open-loop simulator (its rate must be an integer multiple of the controller's;
+        reference channels are used internally whether it publishes them or not).
+    config : LoopConfig
+        The loop: controller rate, design targets, delay, setpoint.
+    current_channel : CurrentChannelConfig, optional
+        The precise current channel (default values when None).
+    design : ControllerDesign, optional
+        A controller designed elsewhere (must be at ``config.rate_Hz``); default: designed
+        from ``config`` on the simulator's model.
+
+    Attributes
+    ----------
+    design : ControllerDesign
+        The controller and the margins the design predicts.
+    ratio : int
+        Simulator samples per controller sample.
+    delay_sim_samples : int
+        Delay of the controller output [simulator samples].
+    channel_names, channel_units : tuple of str
+        Output rows of :meth:`step_block`.
+
+    Raises
+    ------
+    ValueError
+        If the rates are not integer multiples, the delay is not a whole number of simulator
+        samples >= 1, or the design fails (the message says which).
+    """
+
+    def __init__(self, simulator: Simulator, config: LoopConfig,
+                 current_channel: Optional[CurrentChannelConfig] = None,
+                 design: Optional[ControllerDesign] = None) -> None:
+        self.sim = simulator
+        self.config = config
+        self.current_channel = current_channel or CurrentChannelConfig()
+        ratio = simulator.sample_rate_Hz / config.rate_Hz
+        if ratio < 1.0 - 1e-9 or abs(ratio - round(ratio)) > 1e-9:
+            raise ValueError(f'control.rate_Hz: {config.rate_Hz} Hz must divide the simulator '
+                             f'rate {simulator.sample_rate_Hz} Hz')
+        self.ratio = int(round(ratio))
+        delay = config.delay_samples * self.ratio
+        if delay < 1.0 - 1e-9 or abs(delay - round(delay)) > 1e-9:
+            raise ValueError(f'control.delay_samples: {config.delay_samples} controller samples '
+                             f'is {delay:g} simulator samples; it must be a whole number >= 1 '
+                             f'(raise the simulator rate or change the delay)')
+        self.delay_sim_samples = int(round(delay))
+        self.design = design if design is not None else design_for(simulator, config)
+        if abs(self.design.controller.sample_rate_Hz - config.rate_Hz) > 1e-9 * config.rate_Hz:
+            raise ValueError('design: the controller runs at '
+                             f'{self.design.controller.sample_rate_Hz} Hz, not at the '
+                             f'configured {config.rate_Hz} Hz')
+        conv = simulator.params.converters
+        force_limit = conv.coil_current_limit_A * simulator.params.motor.coefficient_N_per_A(0.0)
+        self.output_limits_N = (-float(force_limit), float(force_limit))
+        self._coef = pack_controller(self.design.controller, self.output_limits_N)
+        names = simulator.channel_names
+        self._public_rows = list(range(len(names)))
+        self.channel_names = tuple(names) + EXTRA_CHANNELS
+        self.channel_units = tuple(simulator.channel_units) + EXTRA_UNITS
+        self._run = _loop_jitted() if simulator.backend == 'numba' else loop_block
+        self._chain = _jitted() if simulator.backend == 'numba' else chain.chain_block
+        self._channel_seed = (simulator.seed + CHANNEL_SEED_OFFSET) % 2 ** 64
+        self.reset()
+
+    # -- the simulator's interface ---------------------------------------------------------
+
+    @property
+    def params(self):
+        """The balance parameters."""
+        return self.sim.params
+
+    @property
+    def sample_rate_Hz(self) -> float:
+        """Simulator sample rate [Hz]."""
+        return self.sim.sample_rate_Hz
+
+    @property
+    def sample_index(self) -> int:
+        """Index of the next sample."""
+        return self.sim.sample_index
+
+    @property
+    def load_mass_kg(self) -> float:
+        """Mass on the pan [kg]."""
+        return self.sim.load_mass_kg
+
+    @property
+    def load_changer_coupled(self) -> bool:
+        """Whether the load changer's moving mass rides on the pan."""
+        return self.sim.load_changer_coupled
+
+    @property
+    def state(self) -> np.ndarray:
+        """Mechanical state ``[q1, q2, q1', q2']`` [rad, rad/s] (a copy)."""
+        return self.sim.state
+
+    def set_load(self, load_mass_kg: float, load_changer_coupled: bool = False) -> None:
+        """
+        Change the mass on the pan (a load step); the loop and the state continue.
+
+        Parameters
+        ----------
+        load_mass_kg : float
+            Mass on the pan [kg].
+        load_changer_coupled : bool
+            Load changer's moving mass on the pan.
+        """
+        self.sim.set_load(load_mass_kg, load_changer_coupled)
+
+    def reset(self) -> None:
+        """Return to the start: initial state, the controller holding the initial force."""
+        self.sim.reset()
+        hold_V = float(self.sim.last_setpoints_V[0])
+        params = self.sim.params
+        force = float(params.motor.force_N(params.coil_amplifier.current_A(hold_V), 0.0))
+        self._cstate = initial_state(self._coef, force)
+        size = self.delay_sim_samples + self.ratio + 1
+        self._ring_V = np.full(size, hold_V)
+        self._ring_N = np.full(size, force)
+
+    @property
+    def controller_state(self) -> np.ndarray:
+        """The controller's state (a copy; layout of :mod:`emfc_ros.core.control.runtime`)."""
+        return self._cstate.copy()
+
+    def step_block(self, setpoints: np.ndarray) -> np.ndarray:
+        """
+        Simulate a block in closed loop.
+
+        Parameters
+        ----------
+        setpoints : ndarray, shape (2, n)
+            Coil excitation added to the controller's setpoint, and the load-changer setpoint
+            [V].
+
+        Returns
+        -------
+        ndarray, shape (len(channel_names), n)
+            Outputs, rows as :attr:`channel_names`.
+
+        Raises
+        ------
+        ValueError
+            If the array is not ``(2, n)`` or holds values that are not finite (nothing is
+            simulated then).
+        """
+        u = np.ascontiguousarray(setpoints, dtype=float)
+        if u.ndim != 2 or u.shape[0] != 2:
+            raise ValueError(f'setpoints must have shape (2, n) (coil, load_changer), got '
+                             f'shape {u.shape}')
+        sim = self.sim
+        n = u.shape[1]
+        full = np.empty((chain.N_OUT + 2, n))
+        first = sim.sample_index
+        args = (sim._x, sim._prev, u, first, sim._noise_key, bool(sim.noise),
+                bool(sim.quantisation), sim.hold == 'foh', sim.substeps, sim._par,
+                *sim._coeffs, full, self._coef, self._cstate, self._ring_V, self._ring_N,
+                self.ratio, self.delay_sim_samples, float(self.config.position_setpoint_m),
+                self._chain)
+        if sim.backend == 'numba':
+            ok = self._run(*args)
+        else:
+            with np.errstate(over='ignore'):
+                ok = self._run(*args)
+        if not ok:
+            raise ValueError('setpoints must be finite')
+        sim._index += n
+        out = np.empty((len(self.channel_names), n))
+        out[:len(self._public_rows)] = full[self._public_rows]
+        out[-2] = self._precise_current_A(full[chain.N_OUT], first, sim.quantisation)
+        out[-1] = full[chain.N_OUT + 1]
+        return out
+
+    def _precise_current_A(self, current_A: np.ndarray, first: int,
+                           quantise: bool) -> np.ndarray:
+        ch = self.current_channel
+        volts = current_A * ch.shunt_ohm
+        if self.sim.noise and ch.noise_V_rms > 0.0 and current_A.size:
+            volts = volts + ch.noise_V_rms * standard_normals(self._channel_seed, first,
+                                                              current_A.size)[0]
+        if quantise:
+            lsb = lsb_V(ch.adc_bits, ch.adc_range_V)
+            codes = np.clip(np.floor(volts / lsb + 0.5), -2.0 ** (ch.adc_bits - 1),
+                            2.0 ** (ch.adc_bits - 1) - 1.0)
+            volts = codes * lsb
+        else:
+            volts = np.clip(volts, -ch.adc_range_V, ch.adc_range_V)
+        return volts / ch.shunt_ohm
+
+
+def precise_current_resolution_A(channel: CurrentChannelConfig) -> Tuple[float, float]:
+    """
+    One code and the rms noise of the precise current channel, in current [A].
+
+    Parameters
+    ----------
+    channel : CurrentChannelConfig
+        The channel.
+
+    Returns
+    -------
+    (float, float)
+        ``(lsb_A, noise_A_rms)``.
+    """
+    return (lsb_V(channel.adc_bits, channel.adc_range_V) / channel.shunt_ohm,
+            channel.noise_V_rms / channel.shunt_ohm)
