@@ -18,6 +18,7 @@ PACKAGE = 'emfc_ros'
 NODES = {
     'signal_generator': 'emfc_ros.nodes.signal_generator:main',
     'plant_simulator': 'emfc_ros.nodes.plant_simulator:main',
+    'position_controller': 'emfc_ros.nodes.position_controller:main',
     'recorder': 'emfc_ros.nodes.recorder:main',
     'identifier': 'emfc_ros.nodes.identifier:main',
     'daq_bridge': 'emfc_ros.nodes.daq_bridge:main',
@@ -27,6 +28,7 @@ NODES = {
 COMMANDS = {
     'emfc-signal-generator': 'emfc_ros.nodes.signal_generator:main',
     'emfc-plant-simulator': 'emfc_ros.nodes.plant_simulator:main',
+    'emfc-position-controller': 'emfc_ros.nodes.position_controller:main',
     'emfc-recorder': 'emfc_ros.nodes.recorder:main',
     'emfc-identifier': 'emfc_ros.nodes.identifier:main',
     'emfc-daq-bridge': 'emfc_ros.nodes.daq_bridge:main',

@@ -8,6 +8,11 @@ composed in this process on one executor and talk over real DDS; the run
 writes one output folder: ``bag/`` (MCAP rosbag2), ``experiment.yaml`` (the excitation as
 played), ``run.yaml`` (the plan), the identification results and plots, ``timing.json`` and
 ``summary.md``.
+
+With ``target: bridge`` (``config/experiment_bridge_emulator.yaml``) the daq_bridge node
+takes the plant simulator's place: the same experiment on a device (udp back-end; the
+runner can start the device emulator itself, on loopback) or the bridge's simulated device,
+in wall time on the device's sample clock, the signal generator paced by the device.
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ import json
 from pathlib import Path
 import sys
 import time
-from typing import Dict, List, Optional
+from typing import Any, Dict, List, Optional, Tuple
 
 import yaml
 
@@ -57,10 +62,79 @@ def _plan_document(plan: RunPlan, load_kg: float) -> dict:
     doc = dataclasses.asdict(plan)
     doc['experiment'] = '(see experiment.yaml)'
     doc['source'] = str(plan.source) if plan.source else None
-    doc['simulator']['balance_file'] = str(plan.simulator.balance_file or '')
-    doc['simulator']['load_mass_kg_used'] = load_kg
+    if plan.target == 'simulator':
+        doc['simulator']['balance_file'] = str(plan.simulator.balance_file or '')
+        doc['simulator']['load_mass_kg_used'] = load_kg
+        doc.pop('bridge')
+    else:
+        doc.pop('simulator')
+        bridge = doc['bridge']
+        bridge['balance_file'] = str(plan.bridge.balance_file or '')
+        bridge['parameters_file'] = str(plan.bridge.parameters_file or '')
+        bridge['load_mass_kg_used'] = load_kg
     doc['recording']['topics'] = list(plan.recording.topics)
     return {'run': doc}
+
+
+def check_bridge_parameters(plan: RunPlan) -> None:
+    """
+    Refuse daq_bridge parameters the node does not know (the node would ignore them).
+
+    Parameters
+    ----------
+    plan : RunPlan
+        The plan (target ``'bridge'``; other targets pass).
+
+    Raises
+    ------
+    ConfigError
+        Naming ``run.bridge.parameters.<name>`` and the known names.
+    """
+    if plan.bridge is None:
+        return
+    from emfc_ros.nodes.daq_bridge import FUNCGEN_FIELDS, funcgen_key, PARAMETERS
+
+    outputs = plan.bridge.parameters.get('outputs') or ['coil_V', 'load_changer_V']
+    known = set(PARAMETERS) | {f'funcgen.{funcgen_key(str(o))}.{f}' for o in outputs
+                               for f in FUNCGEN_FIELDS}
+    for name in plan.bridge.parameters:
+        if name not in known:
+            raise ConfigError(f'run.bridge.parameters.{name}',
+                              f'not a daq_bridge parameter; known: {sorted(known)}')
+
+
+def bridge_parameters(plan: RunPlan, balance_path: Path, load_kg: float,
+                      device_address: Optional[Tuple[str, int]] = None) -> Dict[str, Any]:
+    """
+    The daq_bridge node's parameters for a run.
+
+    Parameters
+    ----------
+    plan : RunPlan
+        The plan (target ``'bridge'``).
+    balance_path : pathlib.Path
+        Balance parameters file.
+    load_kg : float
+        Mass on the pan [kg] (the sim back-end's device).
+    device_address : tuple, optional
+        ``(host, port)`` of the emulator the runner started.
+
+    Returns
+    -------
+    dict
+        Parameter name to value.
+    """
+    bridge = plan.bridge
+    params = dict(bridge.parameters)
+    params.update({'backend': bridge.backend, 'autostart': False,
+                   'balance_file': str(balance_path)})
+    if bridge.backend == 'sim':
+        params.update({'sim.load_mass_kg': float(load_kg),
+                       'sim.load_changer_coupled': bool(bridge.load_changer_coupled)})
+    if device_address is not None:
+        params.update({'udp.device_host': device_address[0],
+                       'udp.device_port': int(device_address[1])})
+    return params
 
 
 def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
@@ -79,12 +153,14 @@ def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
     Returns
     -------
     dict
-        Samples, blocks, bag path, the pan load used, recorded message counts.
+        Samples, blocks, bag path, the pan load used, recorded message counts; for the
+        bridge target also the excitation offset on the device clock.
 
     Raises
     ------
     RuntimeError
-        If a node refuses to start or the experiment does not finish in ``plan.timeout_s``.
+        If a node refuses to start, the device does not answer or the experiment does not
+        finish in ``plan.timeout_s``.
     """
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -92,24 +168,25 @@ def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
     from std_msgs.msg import Float64MultiArray, String
     from std_srvs.srv import Trigger
 
-    from emfc_ros.core.blocks import SequenceTracker
+    from emfc_ros.core.blocks import SequenceTracker, StreamDescription
     from emfc_ros.core.model.parameters import BalanceParameters
     from emfc_ros.core.signals import experiment_from_config
     from emfc_ros.core.sim.balancing import balancing_load_mass_kg
     from emfc_ros.nodes.convert import BLOCK_QOS, LATCHED_QOS, msg_to_block
-    from emfc_ros.nodes.plant_simulator import PlantSimulatorNode
     from emfc_ros.nodes.recorder import RecorderNode
     from emfc_ros.nodes.signal_generator import SignalGeneratorNode
 
     phases.start('set up nodes')
+    on_bridge = plan.target == 'bridge'
     experiment = experiment_from_config(plan.experiment)
     experiment_path = out / 'experiment.yaml'
     experiment_path.write_text(yaml.safe_dump({'experiment': plan.experiment},
                                               sort_keys=False))
-    balance_path = plan.simulator.balance_file or config_file('balance_default.yaml')
+    device = plan.bridge if on_bridge else plan.simulator
+    balance_path = device.balance_file or config_file('balance_default.yaml')
     params = BalanceParameters.load_yaml(balance_path)
-    coupled = plan.simulator.load_changer_coupled
-    load_kg = plan.simulator.load_mass_kg
+    coupled = device.load_changer_coupled
+    load_kg = device.load_mass_kg
     if load_kg is None:
         load_kg = balancing_load_mass_kg(params, coupled)
     (out / 'run.yaml').write_text(yaml.safe_dump(_plan_document(plan, load_kg),
@@ -119,21 +196,40 @@ def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
     bag = out / 'bag'
     ns = plan.namespace
 
+    emulator = None
     rclpy.init()
     nodes = []
     try:
-        plant = PlantSimulatorNode(namespace=ns, parameter_overrides=[
-            Parameter('time_mode', value='owner'),
-            Parameter('sample_rate_Hz', value=float(rate)),
-            Parameter('balance_file', value=str(balance_path)),
-            Parameter('load_mass_kg', value=float(load_kg)),
-            Parameter('load_changer_coupled', value=bool(coupled)),
-            Parameter('seed', value=int(plan.simulator.seed)),
-            Parameter('noise', value=bool(plan.simulator.noise)),
-            Parameter('quantisation', value=bool(plan.simulator.quantisation)),
-            Parameter('state_rate_Hz', value=float(plan.simulator.state_rate_Hz)),
-            Parameter('publish_groups', value=False)])
-        nodes.append(plant)
+        if on_bridge:
+            from emfc_ros.nodes.daq_bridge import DaqBridgeNode
+            address = None
+            if plan.bridge.start_emulator:
+                emulator = _start_emulator(plan, params, load_kg, coupled)
+                address = emulator.address
+                _progress(f'  device emulator (in this process) on {address[0]}:'
+                          f'{address[1]}, {plan.bridge.emulator.channels} analog inputs')
+            values = bridge_parameters(plan, balance_path, load_kg, address)
+            doc = _plan_document(plan, load_kg)
+            doc['run']['bridge']['parameters'] = values     # as given to the node
+            (out / 'run.yaml').write_text(yaml.safe_dump(doc, sort_keys=False))
+            device_node = DaqBridgeNode(namespace=ns, parameter_overrides=[
+                Parameter(k, value=v) for k, v in values.items()])
+            device_name = 'daq_bridge'
+        else:
+            from emfc_ros.nodes.plant_simulator import PlantSimulatorNode
+            device_node = PlantSimulatorNode(namespace=ns, parameter_overrides=[
+                Parameter('time_mode', value='owner'),
+                Parameter('sample_rate_Hz', value=float(rate)),
+                Parameter('balance_file', value=str(balance_path)),
+                Parameter('load_mass_kg', value=float(load_kg)),
+                Parameter('load_changer_coupled', value=bool(coupled)),
+                Parameter('seed', value=int(plan.simulator.seed)),
+                Parameter('noise', value=bool(plan.simulator.noise)),
+                Parameter('quantisation', value=bool(plan.simulator.quantisation)),
+                Parameter('state_rate_Hz', value=float(plan.simulator.state_rate_Hz)),
+                Parameter('publish_groups', value=False)])
+            device_name = 'plant_simulator'
+        nodes.append(device_node)
         recorder = RecorderNode(namespace=ns, parameter_overrides=[
             Parameter('output', value=str(bag)),
             Parameter('topics', value=list(plan.recording.topics)),
@@ -144,17 +240,20 @@ def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
             Parameter('autostart', value=False),
             Parameter('experiment_description', value=experiment_path.read_text())])
         nodes.append(recorder)
+        pacing = plan.bridge.pacing if on_bridge else 'consumer'
         generator = SignalGeneratorNode(namespace=ns, parameter_overrides=[
             Parameter('experiment_file', value=str(experiment_path)),
-            Parameter('pacing', value='consumer'),
+            Parameter('pacing', value=pacing),
             Parameter('block_size', value=int(plan.block_size)),
-            Parameter('window_blocks', value=8),
+            Parameter('window_blocks', value=plan.bridge.window_blocks if on_bridge else 8),
+            Parameter('lead_blocks', value=plan.bridge.lead_blocks if on_bridge else 2),
             Parameter('autostart', value=False)])
         nodes.append(generator)
         runner = rclpy.create_node('experiment_runner', namespace=ns)
         nodes.append(runner)
 
-        seen = {'samples': 0, 'blocks': 0, 'excitation_blocks': 0, 'status': {}}
+        seen = {'samples': 0, 'blocks': 0, 'end': 0, 'epochs': set(), 'status': {},
+                'offset': None}
         tracker = SequenceTracker()
 
         def on_measurements(msg: Float64MultiArray) -> None:
@@ -162,18 +261,31 @@ def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
             tracker.observe(block.first_sample_index, block.n_samples, block.epoch)
             seen['samples'] += block.n_samples
             seen['blocks'] += 1
+            seen['end'] = max(seen['end'], block.first_sample_index + block.n_samples)
+            seen['epochs'].add(block.epoch)
+
+        def on_description(msg: String) -> None:
+            try:
+                extra = StreamDescription.from_json(msg.data).extra
+            except ValueError:
+                return
+            seen['offset'] = extra.get('excitation_offset_samples')
 
         runner.create_subscription(Float64MultiArray, 'measurements', on_measurements,
                                    BLOCK_QOS)
+        runner.create_subscription(String, 'measurements/description', on_description,
+                                   LATCHED_QOS)
         runner.create_subscription(
             String, 'signal_generator/status',
             lambda m: seen['status'].update(json.loads(m.data)), LATCHED_QOS)
         clients = {name: runner.create_client(Trigger, name) for name in (
-            'signal_generator/start', 'recorder/start', 'recorder/stop')}
+            'signal_generator/start', 'recorder/start', 'recorder/stop', 'daq_bridge/start',
+            'daq_bridge/stop')}
         # One thread: on an idle virtual machine every hand-over between the threads of a
         # MultiThreadedExecutor waits for a sleeping CPU (measured here: a topic round trip
         # of 138 ms median against 0.47 ms single-threaded). The recorder writes to disk in
-        # its own thread, so nothing here blocks the executor.
+        # its own thread (the bridge reads the device in its own), so nothing here blocks
+        # the executor.
         executor = SingleThreadedExecutor()
         for node in nodes:
             executor.add_node(node)
@@ -197,7 +309,7 @@ def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
 
         phases.start('discovery')
         # The recorder subscribes once recording: start it first, then wait until it and
-        # the plant are subscribed to the excitation and the measurements.
+        # the device node are subscribed to the excitation and the measurements.
         answer = call('recorder/start')
         if not answer.success:
             raise RuntimeError(f'recorder refused to start: {answer.message}')
@@ -207,36 +319,65 @@ def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
         def discovered() -> bool:
             return (wanted <= set(recorder.recorded_topics())
                     and generator.count_subscribers('excitation') >= 2
-                    and plant.count_subscribers('measurements') >= 2)
+                    and device_node.count_subscribers('measurements') >= 2)
 
         if not spin_until(discovered, 30.0):
             raise RuntimeError('the nodes did not discover each other in 30 s: recorder '
                                f'topics {recorder.recorded_topics()}, excitation subscribers '
                                f'{generator.count_subscribers("excitation")}, measurement '
-                               f'subscribers {plant.count_subscribers("measurements")}')
+                               f'subscribers {device_node.count_subscribers("measurements")}')
+        if on_bridge:
+            # Start the acquisition while recording, so the bag holds the device stream
+            # from its sample 0; a device that does not answer stops the run here.
+            answer = call('daq_bridge/start')
+            if not answer.success:
+                raise RuntimeError(f'{device_name} could not start the device '
+                                   f'({plan.bridge.backend} back-end): {answer.message}')
+            _progress(f'  {device_name}: {answer.message}')
 
         phases.start('experiment')
         answer = call('signal_generator/start')
         if not answer.success:
             raise RuntimeError(f'signal_generator refused to start: {answer.message}')
         t0 = time.monotonic()
+        settle = int(round(plan.bridge.settle_s * rate)) if on_bridge else 0
+
+        def measured() -> int:
+            """Experiment samples measured so far (on the excitation's clock)."""
+            if not on_bridge:
+                return seen['samples']
+            if seen['offset'] is None:
+                return 0
+            return max(0, seen['end'] - int(seen['offset']))
+
         last = 0.0
-        while seen['samples'] < total:
+        clock = 'measured' if on_bridge else 'simulated'
+        while measured() < total + settle:
             if time.monotonic() - t0 > plan.timeout_s:
                 raise RuntimeError(f'experiment not finished after {plan.timeout_s} s: '
-                                   f'{seen["samples"]} of {total} samples measured')
+                                   f'{min(measured(), total)} of {total} samples measured')
+            if on_bridge and len(seen['epochs']) > 1:
+                raise RuntimeError(f'the device stream restarted during the experiment '
+                                   f'(epochs {sorted(seen["epochs"])}): the device was lost '
+                                   'and reconnected; run the experiment again')
             executor.spin_once(timeout_sec=0.02)
             now = time.monotonic()
             if now - last >= 1.0:
                 last = now
-                _progress(f'  {100.0 * seen["samples"] / total:5.1f} %  section '
-                          f'{seen["status"].get("section") or "-":<32} simulated '
-                          f'{seen["samples"] / rate:6.2f} s of {total / rate:.2f} s, wall '
+                done = min(measured(), total)
+                _progress(f'  {100.0 * done / total:5.1f} %  section '
+                          f'{seen["status"].get("section") or "-":<32} {clock} '
+                          f'{done / rate:6.2f} s of {total / rate:.2f} s, wall '
                           f'{now - t0:5.1f} s')
         _progress(f'  100.0 %  {total} samples measured in {time.monotonic() - t0:.1f} s '
-                  f'(simulated {total / rate:.1f} s)')
+                  f'({clock} {total / rate:.1f} s)')
 
         phases.start('close recording')
+        if on_bridge:
+            # Outputs to their safe values and no more blocks: the stream has an end.
+            answer = call('daq_bridge/stop')
+            if not answer.success:
+                _progress(f'  {device_name}: stop: {answer.message}')
         measurement_topic = f'{ns}/measurements'
         # Everything the runner received has been published; wait (bounded) until the
         # recorder has written as many measurement blocks, then close the bag.
@@ -257,15 +398,51 @@ def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
         answer = call('recorder/stop', timeout_s=60.0)
         if not answer.success:
             raise RuntimeError(f'recorder did not close the bag: {answer.message}')
-        return {'total_samples': total, 'sample_rate_Hz': rate, 'bag': str(bag),
+        info = {'total_samples': total, 'sample_rate_Hz': rate, 'bag': str(bag),
                 'load_mass_kg': load_kg, 'load_changer_coupled': coupled,
                 'measurement_blocks_received': seen['blocks'],
                 'measurement_stream': tracker.counters(),
                 'written_messages': written}
+        if on_bridge:
+            info['excitation_offset_samples'] = int(seen['offset'])
+            info['device'] = _device_summary(plan, emulator)
+        return info
     finally:
         for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()
+        if emulator is not None:
+            emulator.stop()
+
+
+def _start_emulator(plan: RunPlan, params: Any, load_kg: float, coupled: bool) -> Any:
+    """Start the device emulator in this process (loopback only), loaded like the plan."""
+    from emfc_ros.core.device.emulator import DeviceEmulator
+
+    emu = plan.bridge.emulator
+    emulator = DeviceEmulator(emu.host, emu.port, params=params, seed=emu.seed,
+                              max_inputs=emu.channels, simulator_options={
+                                  'load_mass_kg': float(load_kg),
+                                  'load_changer_coupled': bool(coupled),
+                                  'noise': emu.noise, 'quantisation': emu.quantisation})
+    try:
+        emulator.start()
+    except OSError as exc:
+        raise RuntimeError(f'cannot start the device emulator on {emu.host}:{emu.port}: '
+                           f'{exc}') from exc
+    return emulator
+
+
+def _device_summary(plan: RunPlan, emulator: Any) -> str:
+    bridge = plan.bridge
+    if emulator is not None:
+        return (f'daq_bridge, udp back-end, device emulator started by the runner on '
+                f'{emulator.host}:{emulator.port}')
+    if bridge.backend == 'udp':
+        return (f'daq_bridge, udp back-end, device at '
+                f'{bridge.parameters.get("udp.device_host", "127.0.0.1")}:'
+                f'{bridge.parameters.get("udp.device_port", 5005)}')
+    return f'daq_bridge, {bridge.backend} back-end'
 
 
 def identify(plan: RunPlan, info: dict, out: Path, phases: Phases) -> List[str]:
@@ -296,15 +473,23 @@ def identify(plan: RunPlan, info: dict, out: Path, phases: Phases) -> List[str]:
     streams = read_streams(info['bag'])
     ns = plan.namespace
     measurements = streams[f'{ns}/measurements']
+    excitation = streams[f'{ns}/excitation']
+    offset = info.get('excitation_offset_samples', 0)
     lines = [f'Read back {measurements.n_samples} samples x {len(measurements.channel_names)} '
              f'channels of `{ns}/measurements` from the bag (first sample index '
              f'{measurements.first_sample_index}, gaps {len(measurements.gaps)}).', '']
-    excitation = streams[f'{ns}/excitation']
-    applied = measurements.channel('coil_setpoint_V')
-    lines.append(f'Largest difference between the excitation and the setpoint the DAC applied: '
-                 f'{float(np.max(np.abs(applied - excitation.channel("coil")))):.3g} V '
-                 '(coil).')
-    lines.append('')
+    if plan.target == 'bridge':
+        lines += [f'Device: {info["device"]}. Excitation sample 0 was applied at device '
+                  f'sample {offset} (`excitation_offset_samples`); the identification uses '
+                  f'device samples {offset} to {offset + excitation.n_samples}.', '']
+    start = offset - measurements.first_sample_index
+    if 'coil_setpoint_V' in measurements.channel_names and start >= 0 and \
+            start + excitation.n_samples <= measurements.n_samples:
+        applied = measurements.channel('coil_setpoint_V')[start:start + excitation.n_samples]
+        lines.append('Largest difference between the excitation and the setpoint the DAC '
+                     f'applied: {float(np.max(np.abs(applied - excitation.channel("coil")))):.3g}'
+                     ' V (coil).')
+        lines.append('')
     if not plan.identification.get('enabled', True):
         lines.append('Identification disabled in the plan (`identification.enabled: false`).')
         return lines
@@ -320,12 +505,22 @@ def identify(plan: RunPlan, info: dict, out: Path, phases: Phases) -> List[str]:
 
 def _run_pipeline(plan: RunPlan, info: dict, streams: dict, out: Path,
                   phases: Phases) -> List[str]:
+    from emfc_ros.core.ident.errors import IdentificationError
     from emfc_ros.core.ident.from_bag import identify_bag
 
     phases.start('identify')
     options = {k: v for k, v in plan.identification.items() if k != 'enabled'}
-    result, _ = identify_bag(Path(info['bag']), options, namespace=plan.namespace,
-                             progress=_pipeline_progress, streams=streams)
+    if plan.target == 'bridge':
+        # What was on the pan is known to the plan, not to the device: tell the model.
+        options.setdefault('load_mass_kg', float(info['load_mass_kg']))
+        options.setdefault('load_changer_coupled', bool(info['load_changer_coupled']))
+    try:
+        result, _ = identify_bag(Path(info['bag']), options, namespace=plan.namespace,
+                                 progress=_pipeline_progress, streams=streams)
+    except IdentificationError as exc:
+        info['identification_error'] = str(exc)
+        return [f'**Identification failed:** {exc}. The bag is complete; identify it again '
+                f'with `emfc-identify` once the cause is fixed.']
     phases.start('report')
     from emfc_ros.core.report import write_report
     folder = out / 'identification'
@@ -363,6 +558,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     args = parser.parse_args(argv)
     try:
         plan = load_plan(Path(args.plan) if args.plan else config_file(DEFAULT_PLAN))
+        check_bridge_parameters(plan)
     except (ConfigError, FileNotFoundError) as exc:
         print(f'emfc-experiment: {exc}', file=sys.stderr)
         return 2
@@ -390,8 +586,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     summary = [f'# {plan.name}', '',
                f'Target: {plan.target}, namespace `{plan.namespace}`, '
                f'{info["total_samples"]} samples at {info["sample_rate_Hz"]:g} Hz '
-               f'({info["total_samples"] / info["sample_rate_Hz"]:.1f} s simulated), pan load '
-               f'{1e3 * info["load_mass_kg"]:.2f} g, load changer '
+               f'({info["total_samples"] / info["sample_rate_Hz"]:.1f} s '
+               f'{"on the device clock" if plan.target == "bridge" else "simulated"}), pan '
+               f'load {1e3 * info["load_mass_kg"]:.2f} g, load changer '
                f'{"coupled" if info["load_changer_coupled"] else "not coupled"}.', '',
                f'Bag: `{info["bag"]}`; measurement stream as received live: '
                f'{info["measurement_stream"]}.', '',
@@ -400,6 +597,10 @@ def main(argv: Optional[List[str]] = None) -> int:
     summary += [''] + lines
     (out / 'summary.md').write_text('\n'.join(summary) + '\n')
     print('\n'.join(summary))
+    if 'identification_error' in info:
+        print(f'emfc-experiment: identification failed: {info["identification_error"]}',
+              file=sys.stderr)
+        return 1
     return 0
 
 

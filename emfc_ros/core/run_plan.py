@@ -1,7 +1,8 @@
 """
 The experiment runner's plan: what to excite, on which target, what to record and identify.
 
-Parsed from YAML (``run:`` mapping; see ``config/experiment_default.yaml``) with every error
+Parsed from YAML (``run:`` mapping; see ``config/experiment_default.yaml`` for the simulator
+target and ``config/experiment_bridge_emulator.yaml`` for the bridge target) with every error
 naming the dotted key and the allowed range. Pure: the runner command turns a plan into
 nodes.
 """
@@ -22,7 +23,23 @@ from emfc_ros.core.signals.spec import find_experiment_mapping
 
 TARGETS = ('simulator', 'bridge')
 RUN_KEYS = ('name', 'target', 'namespace', 'experiment_files', 'block_size', 'simulator',
-            'recording', 'identification', 'timeout_s')
+            'bridge', 'recording', 'identification', 'timeout_s')
+BRIDGE_KEYS = ('backend', 'parameters_file', 'parameters', 'start_emulator', 'emulator',
+               'balance_file', 'load_mass_kg', 'load_changer_coupled', 'pacing',
+               'window_blocks', 'lead_blocks', 'settle_s')
+EMULATOR_KEYS = ('host', 'port', 'channels', 'seed', 'noise', 'quantisation')
+BRIDGE_BACKENDS = ('sim', 'udp', 'replay')
+BRIDGE_PACINGS = ('consumer', 'wall')
+#: daq_bridge parameters the plan has its own keys for.
+BRIDGE_OWN_KEYS = {'balance_file': 'run.bridge.balance_file',
+                   'sim.load_mass_kg': 'run.bridge.load_mass_kg',
+                   'sim.load_changer_coupled': 'run.bridge.load_changer_coupled'}
+#: daq_bridge defaults the runner uses unless the parameters say otherwise: joint states at
+#: a monitoring rate and no per-unit group topics (the block stream is the record).
+BRIDGE_RUNNER_DEFAULTS = {'state_rate_Hz': 10.0, 'publish_groups': False}
+#: The daq_bridge node's own defaults that the plan checks depend on.
+BRIDGE_NODE_DEFAULTS = {'watchdog_timeout_s': 1.0, 'excitation_lead_s': 0.1,
+                        'excitation_mode': 'stream', 'udp.device_host': '127.0.0.1'}
 SIMULATOR_KEYS = ('balance_file', 'load_mass_kg', 'load_changer_coupled', 'seed', 'noise',
                   'quantisation', 'state_rate_Hz')
 RECORDING_KEYS = ('topics', 'flush_period_s', 'max_bag_size_B', 'max_bag_duration_s')
@@ -85,6 +102,85 @@ class RecordingPlan:
 
 
 @dataclasses.dataclass(frozen=True)
+class EmulatorPlan:
+    """
+    The device emulator the runner starts for the bridge's udp back-end.
+
+    Attributes
+    ----------
+    host : str
+        Bind address (loopback only).
+    port : int
+        UDP port (0: any free one; the bridge is pointed at the bound port).
+    channels : int
+        Analog inputs of the emulated device (at least the bridge's inputs).
+    seed : int
+        Noise seed.
+    noise, quantisation : bool
+        Simulator noise and converter quantisation on.
+    """
+
+    host: str = '127.0.0.1'
+    port: int = 0
+    channels: int = 6
+    seed: int = 0
+    noise: bool = True
+    quantisation: bool = True
+
+
+@dataclasses.dataclass(frozen=True)
+class BridgePlan:
+    """
+    The hardware side of a run: the daq_bridge node and its back-end.
+
+    Attributes
+    ----------
+    backend : str
+        ``'sim'``, ``'udp'`` or ``'replay'``.
+    parameters : dict
+        daq_bridge parameters by dotted name: the runner's defaults, then the parameters
+        file, then the ``parameters`` mapping (the runner adds ``sample_rate_Hz``,
+        ``autostart``, ``backend``, the balance and, with the emulator, the device address).
+    parameters_file : pathlib.Path or None
+        The ROS parameters file the parameters were read from.
+    start_emulator : bool
+        Start the device emulator in the runner's process (udp back-end, loopback only).
+    emulator : EmulatorPlan
+        The emulator's settings.
+    balance_file : pathlib.Path or None
+        Balance parameters (None: the shipped default): the simulated device's balance and
+        the identification's model.
+    load_mass_kg : float or None
+        Mass on the pan [kg]; None: the balancing mass. Loads the simulated device (sim
+        back-end, emulator) and tells the identification what was on the pan.
+    load_changer_coupled : bool
+        Load changer's moving mass on the pan.
+    pacing : str
+        Signal generator pacing: ``'consumer'`` (the bridge's ``excitation/consumed``, that
+        is the device's sample clock) or ``'wall'``.
+    window_blocks : int
+        Consumer pacing: blocks in flight beyond the acknowledged index.
+    lead_blocks : int
+        Wall pacing: blocks sent ahead of the wall clock.
+    settle_s : float
+        Measured after the last excitation sample before the acquisition stops [s].
+    """
+
+    backend: str = 'sim'
+    parameters: Dict[str, Any] = dataclasses.field(default_factory=dict)
+    parameters_file: Optional[Path] = None
+    start_emulator: bool = False
+    emulator: EmulatorPlan = EmulatorPlan()
+    balance_file: Optional[Path] = None
+    load_mass_kg: Optional[float] = None
+    load_changer_coupled: bool = True
+    pacing: str = 'consumer'
+    window_blocks: int = 4
+    lead_blocks: int = 2
+    settle_s: float = 0.2
+
+
+@dataclasses.dataclass(frozen=True)
 class RunPlan:
     """
     A whole run.
@@ -112,6 +208,8 @@ class RunPlan:
         Upper bound on the experiment phase [s].
     source : pathlib.Path or None
         The file the plan came from.
+    bridge : BridgePlan or None
+        The daq_bridge side (target ``'bridge'`` only).
     """
 
     name: str
@@ -124,6 +222,7 @@ class RunPlan:
     identification: Dict[str, Any]
     timeout_s: float
     source: Optional[Path] = None
+    bridge: Optional[BridgePlan] = None
 
 
 def merge_experiments(mappings: List[Mapping[str, Any]], names: List[str]) -> Dict[str, Any]:
@@ -201,9 +300,11 @@ def plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
     path = 'run'
     reject_unknown(cfg, RUN_KEYS, path)
     target = get_str(cfg, 'target', path, default='simulator', choices=TARGETS)
-    if target == 'bridge':
-        raise ConfigError('run.target', "'bridge' needs the daq_bridge node, which this version "
-                          "does not have yet; use 'simulator'")
+    if target == 'bridge' and 'simulator' in cfg:
+        raise ConfigError('run.simulator', "not used with target 'bridge': the device, its "
+                          'balance and pan load are under run.bridge')
+    if target == 'simulator' and 'bridge' in cfg:
+        raise ConfigError('run.bridge', "only used with target 'bridge'")
     files = get_str_list(cfg, 'experiment_files', path, min_length=1)
     mappings, names = [], []
     for i, name in enumerate(files):
@@ -252,16 +353,247 @@ def plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
         max_bag_duration_s=get_float(rec_cfg, 'max_bag_duration_s', rec_path, default=0.0,
                                      minimum=0.0))
     identification = dict(get_mapping(cfg, 'identification', path, default={}))
+    block_size = get_int(cfg, 'block_size', path, default=1000, minimum=1, maximum=1_000_000)
+    timeout_s = get_float(cfg, 'timeout_s', path, default=600.0, minimum=1.0)
+    bridge = None
+    if target == 'bridge':
+        bridge = bridge_plan_from_mapping(
+            get_mapping(cfg, 'bridge', path), base_dir, experiment, block_size,
+            identify=bool(identification.get('enabled', True)))
+        duration_s = _duration_s(experiment)
+        if timeout_s <= duration_s + bridge.settle_s:
+            raise ConfigError('run.timeout_s', f'{timeout_s} s is too short: on the device '
+                              f'the experiment takes {duration_s:g} s of wall time plus '
+                              f'{bridge.settle_s:g} s of settling')
     return RunPlan(
         name=get_str(cfg, 'name', path, default='experiment'),
         target=target,
         namespace=get_str(cfg, 'namespace', path, default='/emfc'),
         experiment=experiment,
-        block_size=get_int(cfg, 'block_size', path, default=1000, minimum=1,
-                           maximum=1_000_000),
+        block_size=block_size,
         simulator=simulator, recording=recording, identification=identification,
-        timeout_s=get_float(cfg, 'timeout_s', path, default=600.0, minimum=1.0),
-        source=source)
+        timeout_s=timeout_s, source=source, bridge=bridge)
+
+
+def _duration_s(experiment: Mapping[str, Any]) -> float:
+    from emfc_ros.core.signals import experiment_from_config
+    try:
+        built = experiment_from_config(experiment)
+    except ValueError as exc:
+        raise ConfigError('run.experiment_files', f'the merged experiment is invalid: '
+                          f'{exc}') from exc
+    return built.total_samples / built.sample_rate_Hz
+
+
+def _resolve(name: str, base_dir: Path) -> Path:
+    return Path(name) if Path(name).is_absolute() else base_dir / name
+
+
+def read_parameters_file(path: Path, node: str = 'daq_bridge',
+                         key: str = 'run.bridge.parameters_file') -> Dict[str, Any]:
+    """
+    Read a node's parameters from a ROS 2 parameters file, as dotted names.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The file: ``<node or /**>: {ros__parameters: {...}}`` (nested mappings become dotted
+        names), or a plain mapping of parameters.
+    node : str
+        The node whose entry is wanted when the file has several (``/**`` first, then a key
+        ending in the node name).
+    key : str
+        The plan key, for error messages.
+
+    Returns
+    -------
+    dict
+        Parameter name to value.
+
+    Raises
+    ------
+    ConfigError
+        If the file cannot be read or holds no parameters for the node.
+    """
+    try:
+        doc = yaml.safe_load(Path(path).read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError(key, f'cannot read {path}: {exc}') from exc
+    if not isinstance(doc, Mapping):
+        raise ConfigError(key, f'{path}: expected a YAML mapping at the top level')
+    found: Dict[str, Mapping[str, Any]] = {}
+
+    def collect(mapping: Mapping[str, Any], prefix: str) -> None:
+        for name, value in mapping.items():
+            if not isinstance(value, Mapping):
+                continue
+            if name == 'ros__parameters':
+                found[prefix or '/'] = value
+            else:
+                collect(value, f'{prefix}/{name}'.replace('//', '/'))
+
+    collect(doc, '')
+    if not found:
+        return flatten(doc)
+    for name in ('/**', *sorted(n for n in found if n.rstrip('/').endswith(node))):
+        if name in found:
+            return flatten(found[name])
+    if len(found) == 1:
+        return flatten(next(iter(found.values())))
+    raise ConfigError(key, f'{path}: several nodes have parameters ({sorted(found)}) and '
+                           f'none is /** or {node}')
+
+
+def bridge_plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
+                             experiment: Mapping[str, Any], block_size: int,
+                             identify: bool = True) -> BridgePlan:
+    """
+    Build and check the ``run.bridge`` part of a plan.
+
+    Parameters
+    ----------
+    cfg : Mapping
+        The ``run.bridge`` mapping.
+    base_dir : pathlib.Path
+        Folder that relative file names are relative to.
+    experiment : Mapping
+        The merged experiment (its sample rate is the device's).
+    block_size : int
+        Samples per excitation block.
+    identify : bool
+        Whether the run identifies: then the bridge's inputs must hold the channels the
+        identification needs.
+
+    Returns
+    -------
+    BridgePlan
+        The bridge side of the plan.
+
+    Raises
+    ------
+    ConfigError
+        Naming the dotted key (``run.bridge.<key>``, ``run.bridge.parameters.<name>``) and
+        what is allowed.
+    """
+    from emfc_ros.core.device.backend import DEFAULT_INPUTS
+    from emfc_ros.core.device.emulator import check_bind_host
+    from emfc_ros.core.device.errors import DeviceConfigError
+
+    path = 'run.bridge'
+    reject_unknown(cfg, BRIDGE_KEYS, path)
+    params: Dict[str, Any] = dict(BRIDGE_RUNNER_DEFAULTS)
+    origin = {name: f'{path}.parameters.{name}' for name in params}
+    file_name = get_str(cfg, 'parameters_file', path, default='')
+    params_file = _resolve(file_name, base_dir) if file_name else None
+    if params_file is not None:
+        from_file = read_parameters_file(params_file, key=f'{path}.parameters_file')
+        params.update(from_file)
+        origin.update({name: f'{path}.parameters_file ({params_file}): {name}'
+                       for name in from_file})
+    overrides = flatten(get_mapping(cfg, 'parameters', path, default={}))
+    params.update(overrides)
+    origin.update({name: f'{path}.parameters.{name}' for name in overrides})
+    for name, own in BRIDGE_OWN_KEYS.items():
+        if name in params:
+            raise ConfigError(origin[name], f'set by the plan: use {own}')
+    params.pop('autostart', None)       # the runner starts the bridge once all is up
+    default_backend = params.pop('backend', 'sim')
+    backend = get_str(cfg, 'backend', path, default=default_backend, choices=BRIDGE_BACKENDS)
+    if 'backend' in cfg and default_backend != backend and 'backend' in origin:
+        raise ConfigError(f'{path}.backend', f'{backend!r} differs from '
+                          f'{origin["backend"]} = {default_backend!r}')
+    if backend == 'replay':
+        raise ConfigError(f'{path}.backend', "'replay' re-publishes a recorded bag and applies "
+                          "no excitation: an experiment needs 'udp' (a device) or 'sim'")
+
+    rate = float(experiment.get('sample_rate_Hz', 0.0))
+    if 'sample_rate_Hz' in params:
+        value = params['sample_rate_Hz']
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+                abs(float(value) - rate) > 1e-9 * rate:
+            raise ConfigError(origin['sample_rate_Hz'], f'{value!r} differs from the '
+                              f"experiment's sample rate {rate:g} Hz; the device samples at the "
+                              "excitation rate (omit it to take the experiment's)")
+    params['sample_rate_Hz'] = rate
+    for name, (low, high) in (('watchdog_timeout_s', (0.0, 3600.0)),
+                              ('excitation_lead_s', (0.0, 10.0))):
+        value = params.get(name, BRIDGE_NODE_DEFAULTS[name])
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+                not low <= float(value) <= high:
+            raise ConfigError(origin.get(name, f'{path}.parameters.{name}'),
+                              f'must be a number in [{low}, {high}], got {value!r}')
+    mode = params.get('excitation_mode', 'stream')
+    if mode != 'stream':
+        raise ConfigError(origin['excitation_mode'], f"must be 'stream' for an experiment "
+                          f'(the signal generator streams the excitation), got {mode!r}')
+    inputs = params.get('inputs', list(DEFAULT_INPUTS))
+    if isinstance(inputs, (str, bytes)) or not isinstance(inputs, (list, tuple)) or \
+            not all(isinstance(i, str) for i in inputs) or not inputs:
+        raise ConfigError(origin.get('inputs', f'{path}.parameters.inputs'),
+                          f'expected a non-empty list of channel names, got {inputs!r}')
+    if identify:
+        from emfc_ros.core.ident.pipeline import REQUIRED_CHANNELS
+        missing = [c for c in REQUIRED_CHANNELS if c not in inputs]
+        if missing:
+            raise ConfigError(origin.get('inputs', f'{path}.parameters.inputs'),
+                              f'lacks {missing}, which the identification needs (it has '
+                              f'{list(inputs)}); add them, or set '
+                              'run.identification.enabled: false')
+
+    pacing = get_str(cfg, 'pacing', path, default='consumer', choices=BRIDGE_PACINGS)
+    window = get_int(cfg, 'window_blocks', path, default=4, minimum=1, maximum=1000)
+    lead = get_int(cfg, 'lead_blocks', path, default=2, minimum=0, maximum=1000)
+    ahead_s = ((window if pacing == 'consumer' else lead) + 1) * block_size / rate + \
+        float(params.get('excitation_lead_s', BRIDGE_NODE_DEFAULTS['excitation_lead_s']))
+    watchdog_s = float(params.get('watchdog_timeout_s',
+                                  BRIDGE_NODE_DEFAULTS['watchdog_timeout_s']))
+    if watchdog_s < ahead_s + 0.2:
+        raise ConfigError(origin.get('watchdog_timeout_s',
+                                     f'{path}.parameters.watchdog_timeout_s'),
+                          f'{watchdog_s:g} s would trip before the last excitation block is '
+                          f'applied: the generator runs up to {ahead_s:g} s ahead of the '
+                          f'device; use at least {ahead_s + 0.2:g} s or fewer '
+                          f'{"window" if pacing == "consumer" else "lead"}_blocks')
+
+    start_emulator = get_bool(cfg, 'start_emulator', path, default=False)
+    emu_cfg = get_mapping(cfg, 'emulator', path, default={})
+    emu_path = f'{path}.emulator'
+    reject_unknown(emu_cfg, EMULATOR_KEYS, emu_path)
+    if emu_cfg and not start_emulator:
+        raise ConfigError(emu_path, 'only used with start_emulator: true')
+    if start_emulator and backend != 'udp':
+        raise ConfigError(f'{path}.start_emulator', 'starts a UDP device emulator: needs '
+                          f"backend 'udp', got {backend!r}")
+    host = get_str(emu_cfg, 'host', emu_path, default='127.0.0.1')
+    try:
+        host = check_bind_host(host)
+    except DeviceConfigError as exc:
+        raise ConfigError(f'{emu_path}.host', f'{exc}; the runner starts the emulator on '
+                          'loopback only') from None
+    emulator = EmulatorPlan(
+        host=host,
+        port=get_int(emu_cfg, 'port', emu_path, default=0, minimum=0, maximum=65535),
+        channels=get_int(emu_cfg, 'channels', emu_path, default=max(4, len(inputs)),
+                         minimum=1, maximum=64),
+        seed=get_int(emu_cfg, 'seed', emu_path, default=0, minimum=0),
+        noise=get_bool(emu_cfg, 'noise', emu_path, default=True),
+        quantisation=get_bool(emu_cfg, 'quantisation', emu_path, default=True))
+    if start_emulator and emulator.channels < len(inputs):
+        raise ConfigError(f'{emu_path}.channels', f'{emulator.channels} analog inputs cannot '
+                          f'carry the {len(inputs)} inputs {list(inputs)}')
+
+    balance = get_str(cfg, 'balance_file', path, default='')
+    load = cfg.get('load_mass_kg', 'balance')
+    load_kg = None if load == 'balance' else get_float(cfg, 'load_mass_kg', path, minimum=0.0,
+                                                       maximum=2.0)
+    return BridgePlan(
+        backend=backend, parameters=params, parameters_file=params_file,
+        start_emulator=start_emulator, emulator=emulator,
+        balance_file=_resolve(balance, base_dir) if balance else None,
+        load_mass_kg=load_kg,
+        load_changer_coupled=get_bool(cfg, 'load_changer_coupled', path, default=True),
+        pacing=pacing, window_blocks=window, lead_blocks=lead,
+        settle_s=get_float(cfg, 'settle_s', path, default=0.2, minimum=0.0, maximum=60.0))
 
 
 def load_plan(path: Path) -> RunPlan:

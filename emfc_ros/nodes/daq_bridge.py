@@ -126,6 +126,8 @@ PARAMETERS: Dict[str, Tuple[Any, str]] = {
     'replay.loop': (False, 'replay: start over in a new epoch after the last block'),
     'sim.seed': (0, 'sim: noise seed, >= 0'),
     'sim.load_mass_kg': (0.0, 'sim: mass on the pan [kg], 0 to 2'),
+    'sim.load_changer_coupled': (False, "sim: the load changer's moving mass rides on the "
+                                        'pan'),
 }
 #: Function-generator fields (``funcgen.<output>.<field>``) and their defaults.
 FUNCGEN_FIELDS = {
@@ -343,8 +345,10 @@ class DaqBridgeNode(Node):
                 seed = int(self._param('sim.seed'))
                 if seed < 0:
                     raise ConfigError('sim.seed', f'must be >= 0, got {seed}')
+                coupled = bool(self._param('sim.load_changer_coupled'))
                 backend = create_backend('sim', params=self._balance, seed=seed,
-                                         simulator_options={'load_mass_kg': load})
+                                         simulator_options={'load_mass_kg': load,
+                                                            'load_changer_coupled': coupled})
         rate = float(self._param('state_rate_Hz'))
         if not 0.0 <= rate <= config.sample_rate_Hz:
             raise ConfigError('state_rate_Hz', f'must be in [0, {config.sample_rate_Hz}] Hz, '

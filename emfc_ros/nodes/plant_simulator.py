@@ -15,19 +15,35 @@ Topics (relative to the node namespace):
 - ``joint_commands`` (``sensor_msgs/JointState``, in; ros2_control topic-based hardware) and
   ``commands`` (``std_msgs/Float64MultiArray``, in; forward_command_controller): an effort
   command, the coil force [N] added to the excitation; held until the next command, zeroed
-  by a watchdog after ``command_timeout_s``. It takes effect from the next block on.
-- ``/clock`` (``rosgraph_msgs/Clock``, out) when ``time_mode`` is ``owner``.
+  by a watchdog after ``command_timeout_s``. It takes effect from the next block on. In
+  ``lockstep`` mode the command is the total coil force instead (below).
+- ``/clock`` (``rosgraph_msgs/Clock``, out) when ``time_mode`` is ``owner`` or ``lockstep``.
 - ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``, out, 1 Hz).
 
 Time modes: ``owner`` (the simulator owns time: each excitation block is simulated as soon
 as it arrives, measurement blocks carry the excitation's sample indices, ``/clock`` advances
-by the simulated time: lockstep with the input, faster than real time) and ``wall`` (paced
+by the simulated time: lockstep with the input, faster than real time), ``wall`` (paced
 to the wall clock: the simulator runs continuously on its own sample clock, consuming queued
-excitation and the safe value 0 V when there is none, which is counted as an underrun).
+excitation and the safe value 0 V when there is none, which is counted as an underrun) and
+``lockstep`` (lockstep with an external controller, see ``docs/ros_control.md``): the
+simulator owns time and advances one controller period, ``N = sample_rate_Hz /
+state_rate_Hz`` samples, per effort command. It publishes the joint state at ``t_k`` (sample
+``k N``, stamped with simulated time) and ``/clock``, waits for the command answering it
+(matched by header stamp on ``joint_commands`` with ``lockstep_match: stamp``; the next one
+otherwise and always on ``commands``), converts the commanded TOTAL coil force to a coil
+setpoint at the measured position, simulates samples ``k N + 1 .. (k + 1) N`` with it (zero-order
+hold; the DAC is written one simulator sample after the ADC sample it answers) and
+publishes that measurement block and the state at ``t_(k+1)``. ``command_delay_periods: 1``
+applies each command one period later. Excitation blocks received in this mode are queued
+and added sample by sample (coil: volts on top of the commanded setpoint). The first state
+(sample 0, the lever held by the hold-point setpoint, so its effort is the holding force) is
+published once ``joint_states`` has a subscriber; the current state is re-published every
+``command_timeout_s`` of wall time while no command answers it.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 import math
 from pathlib import Path
 import time
@@ -37,6 +53,7 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.clock import Clock as RosClock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
@@ -60,7 +77,8 @@ from emfc_ros.nodes.convert import (
 from emfc_ros.nodes.spin import run_node
 
 DEFAULT_BALANCE = 'balance_default.yaml'
-TIME_MODES = ('owner', 'wall')
+TIME_MODES = ('owner', 'wall', 'lockstep')
+LOCKSTEP_MATCH = ('stamp', 'next')
 GROUPS = {
     'position': ('position_m', 'sensor_V', 'position_true_m'),
     'current': ('coil_current_A', 'load_changer_current_A'),
@@ -76,7 +94,9 @@ PARAMETERS = {
                                 'carry the same rate'),
     'block_size': (1000, 'wall mode: samples simulated per step [samples], 1 to 1000000'),
     'time_mode': ('owner', "'owner': lockstep with the excitation, publishes /clock; 'wall': "
-                           'paced to the wall clock'),
+                           "paced to the wall clock; 'lockstep': one controller period "
+                           '(sample_rate_Hz / state_rate_Hz samples) per effort command, '
+                           'publishes /clock'),
     'seed': (0, 'seed of the sensor and amplifier noise'),
     'noise': (True, 'simulate sensor and amplifier current noise'),
     'quantisation': (True, 'simulate 16-bit DAC and ADC quantisation and saturation'),
@@ -88,9 +108,41 @@ PARAMETERS = {
                                     'run time'),
     'state_rate_Hz': (1000.0, 'rate of joint_states [Hz], 0 disables, at most sample_rate_Hz'),
     'command_timeout_s': (0.1, 'effort command watchdog [s]; the command returns to 0 N after '
-                               'this long without a new one'),
+                               'this long without a new one; lockstep mode: the current state '
+                               'is re-published after this long of wall time without an '
+                               'answer'),
+    'command_delay_periods': (1, 'lockstep mode: 0 = the command answering the state at t_k '
+                                 'acts over [t_k, t_k+1) (plus one simulator sample), 1 = one '
+                                 'controller period later [periods]'),
+    'lockstep_match': ('stamp', "lockstep mode: 'stamp' = a joint_commands message answers the "
+                                "state with the same header stamp; 'next' = the next command "
+                                'answers the pending state whatever its stamp (ros2_control '
+                                'topic-based hardware stamps with its own clock)'),
     'publish_groups': (True, 'also publish measurements/position, current and force'),
 }
+
+
+@dataclass
+class _Lockstep:
+    """Bookkeeping of the lockstep time mode (one controller period per command)."""
+
+    period: int = 0                 # samples per controller period; 0: not configured
+    delay: int = 1                  # command_delay_periods
+    match: str = 'stamp'            # lockstep_match
+    started: bool = False           # the first state has been published
+    waiting: bool = False           # a state is published and waits for its command
+    index: int = 0                  # sample index of the next simulated sample
+    stamp_ns: int = 0               # stamp of the state waiting for its command
+    published_at: float = 0.0       # monotonic time that state was (re-)published [s]
+    state_msg: Optional[JointState] = None
+    hold_V: Optional[float] = None  # coil setpoint before the first command [V]
+    coil_V: float = 0.0             # coil setpoint held over the current period [V]
+    pending_V: float = 0.0          # command_delay_periods 1: setpoint of the next period [V]
+    periods: int = 0                # periods simulated
+    republished: int = 0            # states re-published for lack of an answer
+    stale: int = 0                  # joint_commands whose stamp matches no waiting state
+    unexpected: int = 0             # commands while no state waits (before the start)
+    first_wall_s: float = 0.0       # monotonic time of the first state [s]
 
 
 class PlantSimulatorNode(Node):
@@ -140,6 +192,12 @@ class PlantSimulatorNode(Node):
         self._row = {name: i for i, name in enumerate(self._names)}
         self._saturation = {}
         self._last_position_m = 0.0
+        self._bad_commands = 0
+        self._lock = _Lockstep()
+        if self._mode not in TIME_MODES:
+            self._fail(f'time_mode must be one of {list(TIME_MODES)}, got {self._mode!r}')
+        elif self._mode == 'lockstep':
+            self._configure_lockstep()
 
         self._pub = {'measurements': self.create_publisher(Float64MultiArray, 'measurements',
                                                            BLOCK_QOS)}
@@ -156,7 +214,7 @@ class PlantSimulatorNode(Node):
         # with states at 1 kHz is 100 messages).
         self._pub_state = self.create_publisher(JointState, 'joint_states', STATE_QOS)
         self._pub_clock = self.create_publisher(Clock, '/clock', 10) \
-            if self._mode == 'owner' else None
+            if self._mode in ('owner', 'lockstep') else None
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_subscription(Float64MultiArray, 'excitation', self._on_excitation,
                                  BLOCK_QOS)
@@ -172,6 +230,37 @@ class PlantSimulatorNode(Node):
         if self._mode == 'wall':
             block = int(self._param('block_size'))
             self.create_timer(min(0.02, max(0.001, 0.5 * block / self._rate)), self._wall_tick)
+        elif self._mode == 'lockstep':
+            # Wall-clock (steady) timer: starts the loop and re-publishes an unanswered state.
+            self.create_timer(0.005, self._lockstep_tick,
+                              clock=RosClock(clock_type=ClockType.STEADY_TIME))
+
+    def _fail(self, reason: str) -> None:
+        """Report a configuration error; the node keeps running but does not simulate."""
+        self._error = reason
+        self.get_logger().error(reason)
+
+    def _configure_lockstep(self) -> None:
+        """Check the lockstep parameters: a whole number of samples per controller period."""
+        rate = float(self._param('state_rate_Hz'))
+        ratio = self._rate / rate if rate > 0.0 else 0.0
+        n = int(round(ratio))
+        if rate <= 0.0 or n < 1 or abs(ratio - n) > 1e-9 * ratio:
+            self._fail(f'time_mode lockstep needs state_rate_Hz > 0 dividing sample_rate_Hz into '
+                       f'a whole number of samples per period; got {self._rate} Hz / {rate} Hz '
+                       f'= {ratio:g} samples')
+            return
+        delay = self._param('command_delay_periods')
+        if isinstance(delay, bool) or delay not in (0, 1):
+            self._fail(f'command_delay_periods must be 0 or 1, got {delay!r}')
+            return
+        match = self._param('lockstep_match')
+        if match not in LOCKSTEP_MATCH:
+            self._fail(f'lockstep_match must be one of {list(LOCKSTEP_MATCH)}, got {match!r}')
+            return
+        self._lock.period = n
+        self._lock.delay = int(delay)
+        self._lock.match = str(match)
 
     # -- configuration ---------------------------------------------------------------------
 
@@ -207,7 +296,10 @@ class PlantSimulatorNode(Node):
 
     def _on_set_parameters(self, params: List[Parameter]) -> SetParametersResult:
         fixed = ('sample_rate_Hz', 'block_size', 'time_mode', 'seed', 'noise',
-                 'quantisation', 'substeps', 'hold', 'publish_groups')
+                 'quantisation', 'substeps', 'hold', 'publish_groups', 'command_delay_periods',
+                 'lockstep_match')
+        if self._mode == 'lockstep':
+            fixed += ('state_rate_Hz',)
         load = None
         coupled = None
         if any(p.name == 'balance_file' or p.name.startswith('balance.') for p in params):
@@ -217,7 +309,10 @@ class PlantSimulatorNode(Node):
                 return SetParametersResult(successful=False,
                                            reason=f'balance configuration refused: {exc}')
             self._sim = candidate
-            self._error = ''
+            if self._mode != 'lockstep' or self._lock.period:
+                self._error = ''
+            if self._lock.started:
+                self._lock.hold_V = float(candidate.hold_setpoints_V[0])
             self.get_logger().info('new balance parameters: simulator restarted at its '
                                    'operating point')
         for p in params:
@@ -331,6 +426,8 @@ class PlantSimulatorNode(Node):
         if self._epoch != block.epoch and self._mode == 'owner':
             self._epoch = block.epoch
             self._publish_descriptions()
+        if self._mode == 'lockstep':
+            return      # queued; consumed sample by sample as the controller steps the plant
         if self._mode == 'owner' and self._queue.queued:
             first = self._queue.head_index
             setpoints, _ = self._queue.pop(self._queue.queued)
@@ -355,27 +452,123 @@ class PlantSimulatorNode(Node):
 
     # -- controller interface --------------------------------------------------------------
 
+    def _bad_command(self, reason: str) -> None:
+        """Count and report a refused command; the plant keeps running."""
+        self._malformed += 1
+        self._bad_commands += 1
+        self._last_error = reason
+        self.get_logger().warning(f'effort command refused: {reason}',
+                                  throttle_duration_sec=2.0)
+
     def _on_joint_command(self, msg: JointState) -> None:
-        if JOINT in msg.name and len(msg.effort) == len(msg.name):
-            self._set_command(float(msg.effort[msg.name.index(JOINT)]))
+        if JOINT not in msg.name or len(msg.effort) != len(msg.name):
+            self._bad_command(f'joint_commands needs an effort for joint {JOINT!r}; got names '
+                              f'{list(msg.name)} with {len(msg.effort)} efforts')
+            return
+        effort = float(msg.effort[msg.name.index(JOINT)])
+        if self._mode == 'lockstep':
+            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            self._lockstep_command(effort, stamp, 'joint_commands')
         else:
-            self._malformed += 1
-            self._last_error = f'joint_commands needs an effort for joint {JOINT!r}'
+            self._set_command(effort)
 
     def _on_array_command(self, msg: Float64MultiArray) -> None:
-        if len(msg.data) == 1:
-            self._set_command(float(msg.data[0]))
+        if len(msg.data) != 1:
+            self._bad_command(f'commands needs exactly 1 value (effort [N]), got '
+                              f'{len(msg.data)}')
+        elif self._mode == 'lockstep':
+            self._lockstep_command(float(msg.data[0]), None, 'commands')
         else:
-            self._malformed += 1
-            self._last_error = f'commands needs exactly 1 value (effort [N]), got {len(msg.data)}'
+            self._set_command(float(msg.data[0]))
 
     def _set_command(self, effort_N: float) -> None:
         if not math.isfinite(effort_N):
-            self._malformed += 1
-            self._last_error = f'effort command {effort_N!r} is not finite'
+            self._bad_command(f'effort command {effort_N!r} N is not finite')
             return
         self._command_N = effort_N
         self._command_time = time.monotonic()
+
+    # -- lockstep time mode ----------------------------------------------------------------
+
+    def _lockstep_ready(self) -> bool:
+        return self._sim is not None and self._lock.period > 0 and not self._error
+
+    def _lockstep_tick(self) -> None:
+        """Wall-clock timer: publish the first state, re-publish an unanswered one."""
+        lock = self._lock
+        if not self._lockstep_ready():
+            return
+        if not lock.started:
+            if self._pub_state.get_subscription_count() < 1:
+                return
+            lock.started = True
+            lock.first_wall_s = time.monotonic()
+            lock.hold_V = float(self._sim.hold_setpoints_V[0])
+            lock.coil_V = lock.pending_V = lock.hold_V
+            self._lockstep_step(1)          # sample 0: the state at t_0
+            return
+        if lock.waiting and \
+                time.monotonic() - lock.published_at >= float(self._param('command_timeout_s')):
+            lock.republished += 1
+            self._pub_state.publish(lock.state_msg)
+            self._pub_clock.publish(Clock(clock=lock.state_msg.header.stamp))
+            lock.published_at = time.monotonic()
+
+    def _lockstep_command(self, effort_N: float, stamp_ns: Optional[int], topic: str) -> None:
+        """A command arrived in lockstep mode: if it answers the waiting state, step."""
+        lock = self._lock
+        if not math.isfinite(effort_N):
+            self._bad_command(f'{topic}: effort command {effort_N!r} N is not finite')
+            return
+        if not lock.waiting:
+            lock.unexpected += 1
+            return
+        if stamp_ns is not None and lock.match == 'stamp' and stamp_ns != lock.stamp_ns:
+            lock.stale += 1         # answers an earlier (or no) state: ignored
+            return
+        lock.waiting = False
+        volts = coil_setpoint_for_force_V(self._sim.params, effort_N, self._last_position_m)
+        if lock.delay == 0:
+            lock.coil_V = volts
+        else:
+            lock.coil_V, lock.pending_V = lock.pending_V, volts
+        self._command_N = effort_N
+        self._lockstep_step(lock.period)
+
+    def _lockstep_step(self, n: int) -> None:
+        """Simulate ``n`` samples with the held coil setpoint, publish block, state, clock."""
+        lock = self._lock
+        if self._queue.queued:
+            setpoints, real = self._queue.pop(n)
+        else:
+            setpoints, real = np.zeros((2, n)), 0
+        setpoints[0] += lock.coil_V
+        out = self._sim.step_block(setpoints)
+        for key, count in saturation_counts(out, self._names, self._sim.params).items():
+            self._saturation[key] = self._saturation.get(key, 0) + count
+        self._last_position_m = float(out[self._row['position_m'], -1])
+        first = lock.index
+        self._publish_block(first, out)
+        lock.index += n
+        self._sim_samples = lock.index
+        if real:
+            self._pub_ack.publish(UInt64(data=self._queue.head_index))
+        # The state at t_k is the block's last sample, k N; stamped with simulated time.
+        stamp_ns = int(round((lock.index - 1) * 1e9 / self._rate))
+        truth = out[self._row['position_true_m']]
+        msg = JointState()
+        msg.header.stamp = _time_msg(stamp_ns)
+        msg.name = [JOINT]
+        msg.position = [self._last_position_m]
+        msg.velocity = [float((truth[-1] - truth[-2]) * self._rate) if n > 1 else 0.0]
+        msg.effort = [float(out[self._row['coil_force_N'], -1])]
+        lock.state_msg = msg
+        lock.stamp_ns = stamp_ns
+        lock.waiting = True
+        lock.periods += 1 if n == lock.period else 0
+        self._pub_state.publish(msg)
+        self._pub_clock.publish(Clock(clock=msg.header.stamp))
+        lock.published_at = time.monotonic()
 
     def _command_setpoint_V(self) -> float:
         """Coil setpoint [V] that produces the commanded force at the current position."""
@@ -415,6 +608,9 @@ class PlantSimulatorNode(Node):
             response.success, response.message = False, self._error
             return response
         self._sim.reset()
+        if self._mode == 'lockstep' and self._lock.hold_V is not None:
+            # Back to the hold point; simulated time and sample indices go on.
+            self._lock.coil_V = self._lock.pending_V = self._lock.hold_V
         response.success = True
         response.message = 'simulator state reset to the operating point'
         return response
@@ -429,12 +625,26 @@ class PlantSimulatorNode(Node):
                        'malformed_messages': self._malformed,
                        'command_N': self._command_N,
                        'command_watchdog_trips': self._command_watchdog_trips,
+                       'bad_commands': self._bad_commands,
                        'last_error': self._last_error, 'error': self._error})
+        if self._mode == 'lockstep':
+            lock = self._lock
+            wall = time.monotonic() - lock.first_wall_s if lock.started else 0.0
+            values.update({
+                'lockstep_samples_per_period': lock.period,
+                'command_delay_periods': lock.delay, 'lockstep_match': lock.match,
+                'lockstep_periods': lock.periods,
+                'lockstep_periods_per_wall_s': f'{lock.periods / wall:.1f}' if wall else '0',
+                'sim_time_per_wall_time': (f'{lock.index / self._rate / wall:.4f}' if wall
+                                           else '0'),
+                'waiting_for_command': lock.waiting,
+                'states_republished': lock.republished,
+                'stale_commands': lock.stale, 'unexpected_commands': lock.unexpected})
         values.update(self._saturation)
         defects = self._malformed + values['gaps'] + values['duplicates'] + \
             values['reordered'] + values['overlaps']
         level = DiagnosticStatus.WARN if defects else DiagnosticStatus.OK
-        if self._sim is None:
+        if self._sim is None or self._error:
             level = DiagnosticStatus.ERROR
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()

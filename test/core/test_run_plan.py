@@ -42,7 +42,8 @@ def test_merging_refuses_different_rates_and_repeated_sections():
 
 @pytest.mark.parametrize('change, key', [
     ({'target': 'moon'}, 'run.target'),
-    ({'target': 'bridge'}, 'run.target'),
+    ({'target': 'bridge'}, 'run.simulator'),
+    ({'bridge': {'backend': 'sim'}}, 'run.bridge'),
     ({'block_size': 0}, 'run.block_size'),
     ({'simulator': {'load_mass_kg': -1.0}}, 'run.simulator.load_mass_kg'),
     ({'simulator': {'sead': 1}}, 'run.simulator.sead'),
@@ -63,3 +64,86 @@ def test_plan_file_without_run_mapping_is_refused(tmp_path):
     path.write_text('experiment: {}\n')
     with pytest.raises(ConfigError, match='run: mapping'):
         load_plan(path)
+
+
+def _bridge_cfg():
+    return yaml.safe_load(config_file('experiment_bridge_emulator.yaml').read_text())['run']
+
+
+def test_shipped_bridge_plans_load():
+    plan = load_plan(config_file('experiment_bridge_emulator.yaml'))
+    assert plan.target == 'bridge' and plan.bridge.backend == 'udp'
+    assert plan.bridge.start_emulator and plan.bridge.emulator.host == '127.0.0.1'
+    params = plan.bridge.parameters
+    assert params['sample_rate_Hz'] == 10000.0 and 'autostart' not in params
+    assert params['udp.device_host'] == '127.0.0.1'          # loopback only
+    assert {'coil_setpoint_V', 'load_changer_setpoint_V', 'coil_current_A',
+            'load_changer_current_A', 'position_m'} <= set(params['inputs'])
+    assert plan.bridge.emulator.channels >= len(params['inputs'])
+    assert experiment_from_config(plan.experiment).total_samples == 65000
+    sim = load_plan(config_file('experiment_bridge_sim.yaml'))
+    assert sim.bridge.backend == 'sim' and not sim.bridge.start_emulator
+    assert sim.experiment == plan.experiment
+
+
+@pytest.mark.parametrize('change, key', [
+    ({'colour': 'red'}, 'run.bridge.colour'),
+    ({'backend': 'tcp'}, 'run.bridge.backend'),
+    ({'backend': 'replay'}, 'run.bridge.backend'),
+    ({'backend': 'sim'}, 'run.bridge.backend'),       # differs from the parameters file
+    ({'pacing': 'fast'}, 'run.bridge.pacing'),
+    ({'window_blocks': 0}, 'run.bridge.window_blocks'),
+    ({'settle_s': -1.0}, 'run.bridge.settle_s'),
+    ({'load_mass_kg': 3.0}, 'run.bridge.load_mass_kg'),
+    ({'load_changer_coupled': 'yes'}, 'run.bridge.load_changer_coupled'),
+    ({'parameters_file': 'missing.yaml'}, 'run.bridge.parameters_file'),
+    ({'parameters': 'inputs'}, 'run.bridge.parameters'),
+    ({'parameters': {'sample_rate_Hz': 20000.0}}, 'run.bridge.parameters.sample_rate_Hz'),
+    ({'parameters': {'inputs': ['coil_setpoint_V', 'position_m']}},
+     'run.bridge.parameters.inputs'),
+    ({'parameters': {'excitation_mode': 'function_generator'}},
+     'run.bridge.parameters.excitation_mode'),
+    ({'parameters': {'watchdog_timeout_s': 0.3}}, 'run.bridge.parameters.watchdog_timeout_s'),
+    ({'parameters': {'sim': {'load_mass_kg': 0.1}}}, 'run.bridge.parameters.sim.load_mass_kg'),
+    ({'emulator': {'host': '192.0.2.1'}}, 'run.bridge.emulator.host'),
+    ({'emulator': {'channels': 4}}, 'run.bridge.emulator.channels'),
+    ({'emulator': {'prot': 1}}, 'run.bridge.emulator.prot'),
+    ({'start_emulator': False}, 'run.bridge.emulator'),   # emulator settings without it
+])
+def test_bad_bridge_plans_are_refused_naming_the_key(change, key):
+    cfg = _bridge_cfg()
+    if isinstance(change.get('parameters'), dict):
+        cfg['bridge']['parameters'].update(change.pop('parameters'))
+    cfg['bridge'].update(change)
+    with pytest.raises(ConfigError) as info:
+        plan_from_mapping(cfg, Path(config_file('experiment_bridge_emulator.yaml')).parent)
+    assert info.value.key == key, info.value
+
+
+def test_bridge_plan_checks_the_emulator_backend_and_the_timeout():
+    base = Path(config_file('experiment_bridge_emulator.yaml')).parent
+    cfg = _bridge_cfg()
+    cfg['bridge'].pop('parameters_file')
+    cfg['bridge']['backend'] = 'sim'
+    with pytest.raises(ConfigError) as info:
+        plan_from_mapping(cfg, base)
+    assert info.value.key == 'run.bridge.start_emulator'
+    cfg = _bridge_cfg()
+    cfg['timeout_s'] = 5.0                 # the experiment takes 6.5 s on the device clock
+    with pytest.raises(ConfigError) as info:
+        plan_from_mapping(cfg, base)
+    assert info.value.key == 'run.timeout_s'
+    cfg = _bridge_cfg()
+    cfg['identification'] = {'enabled': False}
+    cfg['bridge']['parameters']['inputs'] = ['coil_setpoint_V', 'position_m']
+    plan = plan_from_mapping(cfg, base)    # nothing to identify: any inputs will do
+    assert plan.bridge.parameters['inputs'] == ['coil_setpoint_V', 'position_m']
+
+
+def test_without_override_the_parameters_file_inputs_are_refused_naming_the_file():
+    cfg = _bridge_cfg()
+    del cfg['bridge']['parameters']['inputs']   # daq_bridge_udp.yaml lacks the load changer's
+    with pytest.raises(ConfigError, match='load_changer_current_A') as info:
+        plan_from_mapping(cfg, Path(config_file('experiment_bridge_emulator.yaml')).parent)
+    assert info.value.key.startswith('run.bridge.parameters_file (')
+    assert info.value.key.endswith('daq_bridge_udp.yaml): inputs')

@@ -202,3 +202,66 @@ def test_separate_process_refuses_bad_parameters(tmp_path, processes, executor, 
     assert set_one('load_changer_coupled', True).successful
     assert proc.alive()
     assert proc.stop() == 0, proc.output()
+
+
+class LockstepProbe(Probe):
+    """A probe that also answers joint states by hand."""
+
+    def __init__(self, context):
+        super().__init__(context)
+        self.pub = self.node.create_publisher(JointState, 'joint_commands', 10)
+
+    def stamps(self):
+        return [s.header.stamp.sec * 10 ** 9 + s.header.stamp.nanosec for s in self.states]
+
+    def answer(self, stamp_ns, effort_N):
+        msg = JointState(name=['lever'], effort=[effort_N])
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 10 ** 9)
+        self.pub.publish(msg)
+
+
+def test_lockstep_steps_one_period_per_matching_command(executor, ros_context):
+    plant = PlantSimulatorNode(context=ros_context, parameter_overrides=[
+        Parameter('time_mode', value='lockstep'), Parameter('noise', value=False),
+        Parameter('state_rate_Hz', value=1000.0), Parameter('command_timeout_s', value=0.2),
+        Parameter('command_delay_periods', value=0)])
+    probe = LockstepProbe(ros_context)
+    for node in (plant, probe.node):
+        executor.add_node(node)
+    # The first state (t = 0, held at the hold point) once a subscriber exists, then
+    # re-published while unanswered.
+    assert ros_harness.spin_until(executor, lambda: len(probe.states) >= 2, TIMEOUT_S)
+    assert probe.stamps()[:2] == [0, 0]
+    hold_N = probe.states[0].effort[0]
+    assert 0.15 < hold_N < 0.18 and abs(probe.states[0].position[0]) < 1e-8
+    assert probe.blocks['measurements'][0][0] == 0
+    assert probe.blocks['measurements'][0][2].shape[1] == 1
+
+    # A command with another stamp answers nothing: ignored (counted as stale).
+    assert ros_harness.spin_until(executor, lambda: plant.count_publishers('joint_commands')
+                                  >= 1 and probe.pub.get_subscription_count() >= 1, TIMEOUT_S)
+    probe.answer(5_000_000, 1.0)
+    assert ros_harness.spin_until(executor, lambda: plant._lock.stale >= 1, TIMEOUT_S)
+    # Answer every state with the holding force: one period (10 samples) per answer.
+    for k in range(20):
+        probe.answer(k * 1_000_000, hold_N)
+        assert ros_harness.spin_until(
+            executor, lambda: (k + 1) * 1_000_000 in probe.stamps(), TIMEOUT_S), k
+    firsts = [(b[0], b[2].shape[1]) for b in probe.blocks['measurements']]
+    assert firsts == [(0, 1)] + [(1 + 10 * k, 10) for k in range(20)]
+    assert probe.clock_ns[-1] == 20_000_000
+    assert max(abs(s.position[0]) for s in probe.states) < 1e-6
+    assert plant._lock.republished >= 1
+
+
+def test_lockstep_refuses_a_fractional_period(executor, ros_context):
+    plant = PlantSimulatorNode(context=ros_context, parameter_overrides=[
+        Parameter('time_mode', value='lockstep'), Parameter('state_rate_Hz', value=3000.0)])
+    probe = Probe(ros_context)
+    for node in (plant, probe.node):
+        executor.add_node(node)
+    assert ros_harness.spin_until(executor, lambda: probe.diag_value('error'), TIMEOUT_S)
+    assert 'whole number of samples' in probe.diag_value('error')
+    assert probe.states == []
+    result = plant.set_parameters([Parameter('state_rate_Hz', value=1000.0)])[0]
+    assert not result.successful and 'fixed at start-up' in result.reason

@@ -8,6 +8,11 @@ The bag must hold a measurement block stream (``<ns>/measurements``) and the exc
 stream description (``<ns>/excitation/description``, which carries the section table); the
 plant configuration (pan load, load-changer coupling) is taken from the recorded node
 parameters when the options do not give it.
+
+Measurements recorded through the daq_bridge are on the device's sample clock: excitation
+sample ``k`` was applied at device sample ``k + offset``, the offset published in the
+measurement description (``extra.excitation_offset_samples``). The measured channels are cut
+to the experiment on the excitation's clock before the section table is applied.
 """
 
 from __future__ import annotations
@@ -131,19 +136,110 @@ def identify_bag(bag_path: Path, options: Optional[Mapping[str, Any]] = None,
     if not sections:
         raise IdentificationError(f'the bag has no section table: record '
                                   f'{ns}/excitation/description with the experiment')
-    if measurements.first_sample_index != 0:
-        raise IdentificationError(f'{ns}/measurements starts at sample '
-                                  f'{measurements.first_sample_index}, not 0: the start of '
-                                  'the experiment was not recorded')
+    offset = excitation_offset_samples(measurements, excitation, ns)
+    n_excitation = max([int(s['first_sample_index']) + int(s['n_samples']) for s in sections]
+                       + ([excitation.first_sample_index + excitation.n_samples]
+                          if excitation is not None else []))
+    recording = aligned_channels(measurements, offset, n_excitation if offset else None, ns)
     options = dict(options or {})
     settings = plant_settings(bag_path)
     for key, value in settings.items():
         options.setdefault(key, value)
-    recording = {name: measurements.channel(name) for name in measurements.channel_names}
-    report('read bag', 1.0, f'{measurements.n_samples} samples of {ns}/measurements')
+    n = len(next(iter(recording.values()))) if recording else 0
+    report('read bag', 1.0, f'{n} samples of {ns}/measurements'
+           + (f' from device sample {offset}' if offset else ''))
     result = pipeline.identify(recording, sections, options,
                                sample_rate_Hz=measurements.sample_rate_Hz, progress=progress)
-    info = {'namespace': ns, 'samples': measurements.n_samples,
+    info = {'namespace': ns, 'samples': n,
             'sample_rate_Hz': measurements.sample_rate_Hz, 'sections': sections,
+            'excitation_offset_samples': offset,
             'plant_settings_from_bag': settings}
     return result, info
+
+
+def excitation_offset_samples(measurements: Any, excitation: Any = None,
+                              namespace: str = '') -> int:
+    """
+    Device sample index at which excitation sample 0 was applied.
+
+    The plant simulator measures on the excitation's own sample clock (offset 0, no
+    ``excitation_offset_samples`` in its description); the daq_bridge measures on the
+    device's clock and publishes the offset in the measurement description's ``extra``.
+
+    Parameters
+    ----------
+    measurements : Stream
+        The measurement stream (:func:`read_streams`), with its description.
+    excitation : Stream, optional
+        The excitation stream, to check that the offset belongs to its epoch.
+    namespace : str
+        For messages.
+
+    Returns
+    -------
+    int
+        The offset [samples]: measurement ``k + offset`` responds to excitation ``k``.
+
+    Raises
+    ------
+    IdentificationError
+        If the description says there is an offset but it is unknown (the bridge never took
+        excitation while recording) or it belongs to another excitation epoch.
+    """
+    description = getattr(measurements, 'description', None)
+    extra = description.extra if description is not None else {}
+    if 'excitation_offset_samples' not in extra:
+        return 0
+    offset = extra['excitation_offset_samples']
+    if offset is None:
+        raise IdentificationError(f'{namespace}/measurements/description has no excitation '
+                                  'offset (excitation_offset_samples is null): the bridge did '
+                                  'not receive excitation while the bag was recording')
+    epoch = extra.get('excitation_epoch')
+    if excitation is not None and epoch is not None and int(epoch) != excitation.epoch:
+        raise IdentificationError(f'the excitation offset of {namespace}/measurements belongs '
+                                  f'to excitation epoch {epoch}, the recorded excitation is '
+                                  f'epoch {excitation.epoch}')
+    return int(offset)
+
+
+def aligned_channels(measurements: Any, offset: int, n_samples: Optional[int] = None,
+                     namespace: str = '') -> Dict[str, Any]:
+    """
+    The measured channels on the excitation's sample clock.
+
+    Parameters
+    ----------
+    measurements : Stream
+        The measurement stream (:func:`read_streams`).
+    offset : int
+        Device sample of excitation sample 0 (:func:`excitation_offset_samples`).
+    n_samples : int, optional
+        Samples wanted from there (the experiment's length); None: to the end of the
+        recording.
+    namespace : str
+        For messages.
+
+    Returns
+    -------
+    dict
+        Channel name to a 1-D array whose index ``k`` is excitation sample ``k``.
+
+    Raises
+    ------
+    IdentificationError
+        If the recording does not cover the experiment.
+    """
+    first = measurements.first_sample_index
+    start = int(offset) - first
+    if start < 0:
+        raise IdentificationError(f'{namespace}/measurements starts at sample {first}, '
+                                  f'after the experiment began (sample {offset}): the start '
+                                  'of the experiment was not recorded')
+    stop = measurements.n_samples if n_samples is None else start + int(n_samples)
+    if stop > measurements.n_samples:
+        raise IdentificationError(f'{namespace}/measurements ends at sample '
+                                  f'{first + measurements.n_samples}, before the end of the '
+                                  f'experiment (sample {offset + int(n_samples)})')
+    return {name: measurements.channel(name)[start:stop]
+            for name in measurements.channel_names}
