@@ -64,11 +64,13 @@ from std_srvs.srv import Trigger
 
 from emfc_ros.core.blocks import Channel, StreamDescription
 from emfc_ros.core.config import unflatten
-from emfc_ros.core.errors import BlockError
+from emfc_ros.core.control.loop_config import loop_config
+from emfc_ros.core.errors import BlockError, ConfigError
 from emfc_ros.core.excitation_queue import ExcitationQueue
 from emfc_ros.core.model.parameters import BalanceParameters
 from emfc_ros.core.paths import config_file
 from emfc_ros.core.sim.channels import channel_names, channel_units, MEASURED, REFERENCE
+from emfc_ros.core.sim.closed_loop import ClosedLoopSimulator
 from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V, saturation_counts
 from emfc_ros.core.sim.simulator import Simulator
 from emfc_ros.nodes.convert import (
@@ -81,8 +83,9 @@ TIME_MODES = ('owner', 'wall', 'lockstep')
 LOCKSTEP_MATCH = ('stamp', 'next')
 GROUPS = {
     'position': ('position_m', 'sensor_V', 'position_true_m'),
-    'current': ('coil_current_A', 'load_changer_current_A'),
-    'force': ('coil_force_N', 'load_changer_force_N', 'pan_force_N', 'coil_force_true_N'),
+    'current': ('coil_current_A', 'load_changer_current_A', 'coil_current_precise_A'),
+    'force': ('coil_force_N', 'load_changer_force_N', 'pan_force_N', 'coil_force_true_N',
+              'force_command_N'),
 }
 JOINT = 'lever'
 STATE_QOS = QoSProfile(depth=1000)
@@ -119,7 +122,20 @@ PARAMETERS = {
                                 'answers the pending state whatever its stamp (ros2_control '
                                 'topic-based hardware stamps with its own clock)'),
     'publish_groups': (True, 'also publish measurements/position, current and force'),
+    'control.enabled': (False, 'run the position controller inside the sample loop (closed '
+                               'loop, docs/closed_loop.md); owner and wall modes only; the '
+                               'coil excitation is then added to the controller output'),
+    'control.rate_Hz': (10000.0, 'in-loop controller rate [Hz]; sample_rate_Hz must be a '
+                                 'whole multiple'),
+    'control.crossover_Hz': (100.0, 'design crossover of the in-loop controller [Hz]'),
+    'control.phase_margin_deg': (40.0, 'design phase margin [deg]'),
+    'control.delay_samples': (1.5, 'controller computation and transport delay [controller '
+                                   'samples]; times the simulator samples per controller '
+                                   'sample a whole number >= 1'),
+    'control.notch_Hz': (410.0, 'notch at the lever resonance [Hz]; 0: none'),
+    'control.position_setpoint_m': (0.0, 'lever-end position the loop holds [m]'),
 }
+CONTROL_PREFIX = 'control.'
 
 
 @dataclass
@@ -168,6 +184,8 @@ class PlantSimulatorNode(Node):
         self._units = channel_units(reference=True)
         try:
             self._sim = self._make_simulator()
+            self._names = tuple(self._sim.channel_names)
+            self._units = tuple(self._sim.channel_units)
         except (ValueError, OSError) as exc:
             # Keep running: report the reason, accept a corrected balance_file or balance.*.
             self._sim = None
@@ -285,19 +303,38 @@ class PlantSimulatorNode(Node):
                                               if 'balance' in unflatten(flat)
                                               else unflatten(flat))
 
-    def _make_simulator(self, overrides: Optional[List[Parameter]] = None) -> Simulator:
+    def _make_simulator(self, overrides: Optional[List[Parameter]] = None):
         substeps = int(self._param('substeps'))
-        return Simulator(self._balance(overrides), self._rate, seed=int(self._param('seed')),
-                         noise=bool(self._param('noise')),
-                         quantisation=bool(self._param('quantisation')),
-                         substeps=substeps or None, hold=str(self._param('hold')),
-                         load_mass_kg=float(self._param('load_mass_kg')),
-                         load_changer_coupled=bool(self._param('load_changer_coupled')))
+        sim = Simulator(self._balance(overrides), self._rate, seed=int(self._param('seed')),
+                        noise=bool(self._param('noise')),
+                        quantisation=bool(self._param('quantisation')),
+                        substeps=substeps or None, hold=str(self._param('hold')),
+                        load_mass_kg=float(self._param('load_mass_kg')),
+                        load_changer_coupled=bool(self._param('load_changer_coupled')))
+        flat = {name[len(CONTROL_PREFIX):]: self._param(name) for name in PARAMETERS
+                if name.startswith(CONTROL_PREFIX)}
+        try:
+            loop = loop_config(flat)
+        except ConfigError as exc:
+            raise ValueError(str(exc)) from exc
+        if loop is None:
+            return sim
+        if self._mode == 'lockstep':
+            raise ValueError('control.enabled: the in-loop controller and the lockstep mode '
+                             '(an external controller) exclude each other')
+        looped = ClosedLoopSimulator(sim, loop)
+        d = looped.design
+        self.get_logger().info(
+            f'in-loop controller at {loop.rate_Hz:g} Hz: crossover {d.crossover_Hz:.1f} Hz, '
+            f'phase margin {d.phase_margin_deg:.1f} deg, gain margins '
+            f'{d.lower_gain_margin_dB} / {d.upper_gain_margin_dB} dB, sensitivity peak '
+            f'{d.sensitivity_peak:.2f}')
+        return looped
 
     def _on_set_parameters(self, params: List[Parameter]) -> SetParametersResult:
         fixed = ('sample_rate_Hz', 'block_size', 'time_mode', 'seed', 'noise',
                  'quantisation', 'substeps', 'hold', 'publish_groups', 'command_delay_periods',
-                 'lockstep_match')
+                 'lockstep_match') + tuple(n for n in PARAMETERS if n.startswith(CONTROL_PREFIX))
         if self._mode == 'lockstep':
             fixed += ('state_rate_Hz',)
         load = None

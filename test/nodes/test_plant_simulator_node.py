@@ -265,3 +265,40 @@ def test_lockstep_refuses_a_fractional_period(executor, ros_context):
     assert probe.states == []
     result = plant.set_parameters([Parameter('state_rate_Hz', value=1000.0)])[0]
     assert not result.successful and 'fixed at start-up' in result.reason
+
+
+def test_in_loop_controller_holds_a_100_g_step_over_dds(executor, ros_context):
+    """control.enabled: the loop runs inside the node's sample loop; excitation adds to it."""
+    rate = 20000.0
+    plant = PlantSimulatorNode(context=ros_context, parameter_overrides=[
+        Parameter('time_mode', value='owner'), Parameter('sample_rate_Hz', value=rate),
+        Parameter('seed', value=3), Parameter('control.enabled', value=True)])
+    probe = Probe(ros_context)
+    feeder = rclpy.create_node('feeder', context=ros_context)
+    pub = feeder.create_publisher(Float64MultiArray, 'excitation', BLOCK_QOS)
+    for node in (plant, probe.node, feeder):
+        executor.add_node(node)
+    assert ros_harness.spin_until(executor, lambda: pub.get_subscription_count() >= 1
+                                  and plant.count_subscribers('measurements') >= 1, TIMEOUT_S)
+    block = 2000
+    pub.publish(block_to_msg(0, rate, 1, np.zeros((2, block))))
+    assert ros_harness.spin_until(executor, lambda: probe.samples() >= block, TIMEOUT_S)
+    client = AsyncParameterClient(feeder, 'plant_simulator')
+    assert client.wait_for_services(TIMEOUT_S)
+    future = client.set_parameters([Parameter('load_mass_kg', value=0.1)])
+    assert ros_harness.spin_until(executor, future.done, TIMEOUT_S)
+    assert future.result().results[0].successful
+    # 0.5 s after the step, in simulated time
+    for k in range(1, 6):
+        pub.publish(block_to_msg(k * block, rate, 1, np.zeros((2, block))))
+    assert ros_harness.spin_until(executor, lambda: probe.samples() >= 6 * block, TIMEOUT_S)
+    names = probe.descriptions['measurements'].channel_names
+    assert 'coil_current_precise_A' in names and 'force_command_N' in names
+    got = np.concatenate([b[2] for b in probe.blocks['measurements']], axis=1)
+    y = got[names.index('position_true_m')]
+    assert np.max(np.abs(y)) < 100e-6
+    assert np.max(np.abs(y[block:])) > 5e-6           # the step reached the lever
+    assert abs(np.mean(y[-block:])) < 1e-8            # and the loop brought it back
+    force = got[names.index('force_command_N')]
+    assert np.mean(force[-block:]) < np.mean(force[:block]) - 0.1   # 100 g less coil force
+    assert 'coil_current_precise_A' in probe.descriptions['measurements/current'].channel_names

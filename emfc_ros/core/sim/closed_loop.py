@@ -256,6 +256,11 @@ class ClosedLoopSimulator:
         return self.sim.load_changer_coupled
 
     @property
+    def hold_setpoints_V(self) -> np.ndarray:
+        """Open-loop setpoints [V] that hold the lever at 0 for the current load (a copy)."""
+        return self.sim.hold_setpoints_V
+
+    @property
     def state(self) -> np.ndarray:
         """Mechanical state ``[q1, q2, q1', q2']`` [rad, rad/s] (a copy)."""
         return self.sim.state
