@@ -23,6 +23,7 @@ import threading
 import time
 from typing import List, Optional
 
+from emfc_ros.core.control.loop_config import loop_config
 from emfc_ros.core.device.emulator import check_bind_host, DeviceEmulator, Faults
 from emfc_ros.core.device.sim_backend import load_parameters
 
@@ -46,6 +47,14 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument('--seed', type=int, default=0, help='noise and fault seed')
     parser.add_argument('--duration-s', type=float, default=0.0,
                         help='stop after this long (default 0: run until interrupted)')
+    parser.add_argument('--control-crossover-Hz', type=float, default=0.0,
+                        help='run the position controller inside the device loop, designed '
+                             'for this crossover [Hz] (default 0: open loop)')
+    parser.add_argument('--control-rate-Hz', type=float, default=10000.0,
+                        help='in-loop controller rate [Hz] (the device rate must be a whole '
+                             'multiple)')
+    parser.add_argument('--control-notch-Hz', type=float, default=410.0,
+                        help='notch of the in-loop controller [Hz] (0: none)')
     parser.add_argument('--allow-remote', action='store_true',
                         help='permit a non-loopback bind address (exposes the emulator)')
     return parser
@@ -78,9 +87,14 @@ def main(argv: Optional[List[str]] = None) -> int:
             raise ValueError(f'--port must be in [0, 65535], got {args.port}')
         faults = Faults.parse(args.faults)
         params = load_parameters(args.config)
+        options = {}
+        if args.control_crossover_Hz > 0.0:
+            options['control'] = loop_config({'crossover_Hz': args.control_crossover_Hz,
+                                              'rate_Hz': args.control_rate_Hz,
+                                              'notch_Hz': args.control_notch_Hz}, '--control')
         emulator = DeviceEmulator(host, args.port, params=params, seed=args.seed,
                                   max_inputs=args.channels, faults=faults,
-                                  allow_remote=args.allow_remote)
+                                  allow_remote=args.allow_remote, simulator_options=options)
         port = emulator.start()
     except (ValueError, OSError) as exc:
         print(f'{PROG}: error: {exc}', file=sys.stderr)

@@ -185,3 +185,32 @@ def test_backend_and_configuration_from_a_mapping_name_bad_keys():
                      ({'output_safe_V': [20.0, 0.0]}, 'safe_V')):
         with pytest.raises(ConfigError, match=key):
             backend_from_mapping(cfg, 'device' if key == 'safe_V' else '')
+
+
+def test_the_emulated_device_can_run_the_controller_in_its_sample_loop():
+    """The sim back-end with a LoopConfig holds 0.1 kg; the precise channel streams."""
+    from emfc_ros.core.control.loop_config import LoopConfig
+    from emfc_ros.core.device.backend import default_input_channel
+    loop = LoopConfig(rate_Hz=10000.0, crossover_Hz=100.0, notch_Hz=410.0)
+    device = SimBackend(seed=2, simulator_options={'control': loop, 'load_mass_kg': 0.1})
+    # the precise current through a 16-bit device code: a window around the working point
+    precise = default_input_channel('coil_current_precise_A')
+    names = ('position_m', 'coil_current_precise_A', 'force_command_N')
+    config = default_device_config(RATE_HZ, 1000, names)
+    assert config.inputs[1].name == precise.name
+    device.configure(config)
+    device.start()
+    blocks = [device.read_block() for _ in range(10)]
+    device.stop()
+    samples = np.concatenate([b.samples for b in blocks], axis=1)
+    assert [b.first_sample_index for b in blocks] == list(range(0, 10000, 1000))
+    # no setpoints were written: the controller alone holds the lever (open loop would fall
+    # onto a stop with 0 V on the coil)
+    assert np.max(np.abs(samples[0])) < 2e-6
+    # and its force is the one that holds 100 g (within 2 codes of the 4 N / 32768 scaling)
+    from emfc_ros.core.sim.hold_point import hold_point
+    params = device.device.params
+    held_N = hold_point(params, 0.1).currents_A[0] * params.motor.coefficient_N_per_A(0.0)
+    np.testing.assert_allclose(np.mean(samples[2, -2000:]), held_N, rtol=0, atol=2.5e-4)
+    with pytest.raises(DeviceConfigError, match='unknown input'):
+        SimBackend(seed=2).configure(default_device_config(RATE_HZ, 1000, names))

@@ -71,7 +71,11 @@ class SimulatedDevice:
     max_inputs : int
         Most input channels a configuration may select (the device's analog inputs).
     simulator_options : mapping, optional
-        Extra keyword arguments of :class:`Simulator` (``noise``, ``load_mass_kg``...).
+        Extra keyword arguments of :class:`Simulator` (``noise``, ``load_mass_kg``...), and
+        ``control``: a :class:`~emfc_ros.core.control.loop_config.LoopConfig` that runs the
+        position controller inside the device's sample loop (channels
+        ``coil_current_precise_A`` and ``force_command_N`` join the catalogue; the outputs'
+        coil setpoint is then added to the controller's).
     """
 
     def __init__(self, params: Any = None, seed: int = 0, *, max_inputs: int = MAX_CHANNELS,
@@ -83,6 +87,9 @@ class SimulatedDevice:
         self.simulator_options = dict(simulator_options or {})
         reference = bool(self.simulator_options.get('reference_channels', True))
         self.catalogue: Tuple[str, ...] = channels.channel_names(reference)
+        if self.simulator_options.get('control') is not None:
+            from emfc_ros.core.sim.closed_loop import EXTRA_CHANNELS
+            self.catalogue += EXTRA_CHANNELS
         self.sim: Any = None
         self.config: Optional[DeviceConfig] = None
         self.state = IDLE
@@ -106,9 +113,22 @@ class SimulatedDevice:
             Sample rate to build it for [Hz].
         """
         if self.sim is None:
-            from emfc_ros.core.sim.simulator import Simulator
-            self.sim = Simulator(self.params, sample_rate_Hz, self.seed,
-                                 **self.simulator_options)
+            try:
+                self.sim = self._build_simulator(sample_rate_Hz)
+            except ValueError:      # e.g. a closed loop that needs another rate: at configure
+                self.sim = None
+
+    def _build_simulator(self, sample_rate_Hz: float) -> Any:
+        # the open-loop simulator, or with option ``control`` (a LoopConfig) the balance with
+        # its position controller in the sample loop, as an FPGA runs it
+        from emfc_ros.core.sim.simulator import Simulator
+        options = dict(self.simulator_options)
+        control = options.pop('control', None)
+        sim = Simulator(self.params, sample_rate_Hz, self.seed, **options)
+        if control is None:
+            return sim
+        from emfc_ros.core.sim.closed_loop import ClosedLoopSimulator
+        return ClosedLoopSimulator(sim, control)
 
     def configure(self, config: DeviceConfig) -> None:
         """
@@ -140,10 +160,8 @@ class SimulatedDevice:
             raise DeviceConfigError(f'the simulated balance has {N_OUTPUTS} outputs (coil, load '
                                     f'changer), got {len(config.outputs)}')
         if self.sim is None or self.sim.sample_rate_Hz != config.sample_rate_Hz:
-            from emfc_ros.core.sim.simulator import Simulator
             try:
-                self.sim = Simulator(self.params, config.sample_rate_Hz, self.seed,
-                                     **self.simulator_options)
+                self.sim = self._build_simulator(config.sample_rate_Hz)
             except (TypeError, ValueError) as exc:
                 raise DeviceConfigError(f'simulator: {exc}') from exc
         self.config = config
