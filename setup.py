@@ -21,6 +21,7 @@ NODES = {
     'position_controller': 'emfc_ros.nodes.position_controller:main',
     'recorder': 'emfc_ros.nodes.recorder:main',
     'identifier': 'emfc_ros.nodes.identifier:main',
+    'weighing': 'emfc_ros.nodes.weighing:main',
     'daq_bridge': 'emfc_ros.nodes.daq_bridge:main',
 }
 
@@ -31,6 +32,7 @@ COMMANDS = {
     'emfc-position-controller': 'emfc_ros.nodes.position_controller:main',
     'emfc-recorder': 'emfc_ros.nodes.recorder:main',
     'emfc-identifier': 'emfc_ros.nodes.identifier:main',
+    'emfc-weighing': 'emfc_ros.nodes.weighing:main',
     'emfc-daq-bridge': 'emfc_ros.nodes.daq_bridge:main',
     'emfc-bag-repair': 'emfc_ros.cli.bag_repair:main',
     'emfc-bag-info': 'emfc_ros.cli.bag_info:main',
