@@ -24,8 +24,12 @@ Chain per sample ``n`` (period ``dt``, see ``docs/simulator.md``):
 Layout for speed (``docs/simulator.md``, section Performance): the block is worked in chunks of
 ``CHUNK`` samples, each in three passes, so that the latency-bound mechanics loop carries no
 other work: (a) the noise of the chunk, the DAC, amplifiers and pan force, (b) the RK4 steps,
-(c) the sensor, ADC and outputs. Sine and cosine are short Taylor polynomials while every stage
-of an RK4 step has ``|q1| + |q2| < SMALL_ANGLE_RAD``, otherwise the step is recomputed with libm.
+(c) the sensor, ADC and outputs. Passes (a) and (c) hold no inner loops or state-dependent
+branches for the usual polynomial degrees (the characteristics as scalars, the converters
+branch-free with ``np.floor``), so that LLVM can vectorise parts of them; the noise is kept in
+one row per stream. Sine and cosine are short Taylor polynomials while every stage of an RK4
+step has ``q1**2 + q2**2 < SMALL_ANGLE_SQ`` (hence ``|q1| + |q2| < SMALL_ANGLE_RAD``), otherwise
+the step is recomputed with libm.
 """
 
 import math
@@ -79,6 +83,9 @@ MM_PER_M = 1.0e3
 #: omitted terms, x**7 / 5040 and x**6 / 720, are below 3e-18 relative and 3e-17 there, i.e.
 #: below the rounding of the libm values. Otherwise the step is redone with ``math.sin/cos``.
 SMALL_ANGLE_RAD = 5.0e-3
+#: The test on the stages: ``q1**2 + q2**2 < SMALL_ANGLE_RAD**2 / 2`` implies the bound above
+#: and is cheaper to evaluate.
+SMALL_ANGLE_SQ = 0.5 * SMALL_ANGLE_RAD * SMALL_ANGLE_RAD
 #: Samples per chunk of the three passes (scratch arrays of this length stay in the L1 cache).
 CHUNK = 256
 
@@ -281,7 +288,7 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
 
     def rk4_step(q1, q2, w1, w2, ic0, icm, ic1, pan0, panm, pan1, taylor):
         # one RK4 step; also the lever-end position at its start and the largest
-        # |q1| + |q2| of the stages (the Taylor polynomials' argument bound)
+        # q1**2 + q2**2 of the stages (the Taylor polynomials' argument bound)
         e1, f1, y0 = accel(q1, q2, w1, w2, ic0, pan0, taylor)
         a2 = w1 + hh * e1
         b2 = w2 + hh * f1
@@ -298,8 +305,8 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
         q1d = q1 + h * a3
         q2d = q2 + h * b3
         e4, f4, _ = accel(q1d, q2d, a4, b4, ic1, pan1, taylor)
-        bound = max(max(abs(q1) + abs(q2), abs(q1b) + abs(q2b)),
-                    max(abs(q1c) + abs(q2c), abs(q1d) + abs(q2d)))
+        bound = max(max(q1 * q1 + q2 * q2, q1b * q1b + q2b * q2b),
+                    max(q1c * q1c + q2c * q2c, q1d * q1d + q2d * q2d))
         return (q1 + h6 * (w1 + 2.0 * a2 + 2.0 * a3 + a4),
                 q2 + h6 * (w2 + 2.0 * b2 + 2.0 * b3 + b4),
                 w1 + h6 * (e1 + 2.0 * e2 + 2.0 * e3 + e4),
@@ -329,67 +336,105 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
              / ((((D0 * q + D1) * q + D2) * q + D3) * q + 1.0))
         return v if p < 0.5 else -v
 
-    def normals(counter0, z, p_tmp):
-        # z[k] = standard normal at counter0 + k: a branch-free pass, then the tails
-        for k in range(len(z)):
-            p = uniform(counter0 + np.uint64(k))
-            p_tmp[k] = p
-            z[k] = normal_central(p)
-        for k in range(len(z)):
-            p = p_tmp[k]
-            if p < P_LOW or p > 1.0 - P_LOW:
-                z[k] = normal_tail(p)
+    def normals(counter0, m, zz, p_tmp):
+        # zz[r, j] = standard normal at counter0 + 3 j + r: the hash (scalar), the central
+        # rational function (vectorised), then the tails
+        for j in range(m):
+            c = counter0 + np.uint64(3 * j)
+            p_tmp[0, j] = uniform(c)
+            p_tmp[1, j] = uniform(c + ONE)
+            p_tmp[2, j] = uniform(c + TWO)
+        for r in range(3):
+            for j in range(m):
+                zz[r, j] = normal_central(p_tmp[r, j])
+        for r in range(3):
+            for j in range(m):
+                p = p_tmp[r, j]
+                if p < P_LOW or p > 1.0 - P_LOW:
+                    zz[r, j] = normal_tail(p)
 
     def current(coeffs, v, n_i, limit):
         return min(max(horner(coeffs, v) + n_i, -limit), limit)
+
+    def code_of(v, lsb, lo, hi):
+        # the converter's code: nearest, clamped (branch-free, so that the loops vectorise)
+        return min(max(np.floor(min(max(v / lsb, lo - 1.0), hi + 1.0) + 0.5), lo), hi)
+
+    # the characteristics as scalars (zero padded: the same operations as Horner's scheme on
+    # the shorter polynomial), so that passes 1 and 3 carry no inner loops
+    short = (len(amp_coil) <= 3 and len(amp_lc) <= 3 and len(load_changer) <= 3
+             and n_motor <= 3 and len(sensor) <= 6)
+    cf = np.zeros(20)
+    if short:
+        for j in range(len(amp_coil)):
+            cf[j] = amp_coil[j]
+        for j in range(len(amp_lc)):
+            cf[3 + j] = amp_lc[j]
+        for j in range(len(load_changer)):
+            cf[6 + j] = load_changer[j]
+        for j in range(n_motor):
+            cf[9 + j] = motor[j]
+        for j in range(len(sensor)):
+            cf[12 + j] = sensor[j]
+    ac0, ac1, ac2 = cf[0], cf[1], cf[2]
+    al0, al1, al2 = cf[3], cf[4], cf[5]
+    lc0, lc1, lc2 = cf[6], cf[7], cf[8]
+    mo0, mo1, mo2 = cf[9], cf[10], cf[11]
+    se0, se1, se2, se3, se4, se5 = cf[12], cf[13], cf[14], cf[15], cf[16], cf[17]
 
     n_total = u.shape[1]
     chunk = min(n_total, CHUNK)
     i_c = np.empty(chunk)
     i_l = np.empty(chunk)
     f_p = np.empty(chunk)
-    v_c = np.empty(chunk)
-    v_l = np.empty(chunk)
-    n_c = np.empty(chunk)
-    n_l = np.empty(chunk)
+    # DAC values, entry j + 1 for sample j of the chunk, entry 0 the sample before
+    v_c = np.empty(chunk + 1)
+    v_l = np.empty(chunk + 1)
     y_true = np.empty(chunk)
-    z = np.empty(3 * chunk)
-    p_tmp = np.empty(3 * chunk)
+    zz = np.zeros((3, chunk))
+    p_tmp = np.empty((3, chunk))
     q1 = x[0]
     q2 = x[1]
     w1 = x[2]
     w2 = x[3]
-    p_coil = prev[0]
-    p_lc = prev[1]
+    v_c[0] = prev[0]
+    v_l[0] = prev[1]
+    # amplifier input of sample j: v_c[j + hold_off] (the previous DAC value with the FOH)
+    hold_off = 0 if foh else 1
     for start in range(0, n_total, CHUNK):
-        stop_n = min(start + CHUNK, n_total)
+        m = min(start + CHUNK, n_total) - start
         if use_noise:
-            normals(np.uint64(first + start) * THREE + ONE, z[:3 * (stop_n - start)], p_tmp)
+            normals(np.uint64(first + start) * THREE + ONE, m, zz, p_tmp)
         # 1. DAC, amplifiers, pan force (independent of the state)
-        for j in range(stop_n - start):
-            n = start + j
-            v_coil = convert(u[0, n], dac_lsb, dac_lo, dac_hi, dac_range)[0]
-            v_lc = convert(u[1, n], dac_lsb, dac_lo, dac_hi, dac_range)[0]
-            n_ic = 0.0
-            n_ilc = 0.0
-            if use_noise:
-                n_ic = z[3 * j + 1] * noise_ic
-                n_ilc = z[3 * j + 2] * noise_ilc
-            if foh:
-                i_c[j] = current(amp_coil, p_coil, n_ic, i_coil_max)
-                i_l[j] = current(amp_lc, p_lc, n_ilc, i_lc_max)
-            else:
-                i_c[j] = current(amp_coil, v_coil, n_ic, i_coil_max)
-                i_l[j] = current(amp_lc, v_lc, n_ilc, i_lc_max)
-            f_p[j] = horner(load_changer, i_l[j])
-            v_c[j] = v_coil
-            v_l[j] = v_lc
-            n_c[j] = n_ic
-            n_l[j] = n_ilc
-            p_coil = v_coil
-            p_lc = v_lc
+        if short:
+            for j in range(m):
+                n = start + j
+                if quantise:
+                    v_c[j + 1] = code_of(u[0, n], dac_lsb, dac_lo, dac_hi) * dac_lsb
+                    v_l[j + 1] = code_of(u[1, n], dac_lsb, dac_lo, dac_hi) * dac_lsb
+                else:
+                    v_c[j + 1] = min(max(u[0, n], -dac_range), dac_range)
+                    v_l[j + 1] = min(max(u[1, n], -dac_range), dac_range)
+            for j in range(m):
+                vc = v_c[j + hold_off]
+                vl = v_l[j + hold_off]
+                ic = min(max(ac0 + vc * (ac1 + vc * ac2) + zz[1, j] * noise_ic, -i_coil_max),
+                         i_coil_max)
+                il = min(max(al0 + vl * (al1 + vl * al2) + zz[2, j] * noise_ilc, -i_lc_max),
+                         i_lc_max)
+                i_c[j] = ic
+                i_l[j] = il
+                f_p[j] = lc0 + il * (lc1 + il * lc2)
+        else:
+            for j in range(m):
+                n = start + j
+                v_c[j + 1] = convert(u[0, n], dac_lsb, dac_lo, dac_hi, dac_range)[0]
+                v_l[j + 1] = convert(u[1, n], dac_lsb, dac_lo, dac_hi, dac_range)[0]
+                i_c[j] = current(amp_coil, v_c[j + hold_off], zz[1, j] * noise_ic, i_coil_max)
+                i_l[j] = current(amp_lc, v_l[j + hold_off], zz[2, j] * noise_ilc, i_lc_max)
+                f_p[j] = horner(load_changer, i_l[j])
         # 2. the mechanics: the lever-end position at t_n, then integrate [t_n, t_n + dt)
-        for j in range(stop_n - start):
+        for j in range(m):
             ic0 = i_c[j]
             icm = ic0
             ic1 = ic0
@@ -397,12 +442,12 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
             fpm = fp0
             fp1 = fp0
             if foh:
-                pc = v_c[j - 1] if j > 0 else prev[0]
-                pl = v_l[j - 1] if j > 0 else prev[1]
-                vc = v_c[j]
-                vl = v_l[j]
-                nic = n_c[j]
-                nil = n_l[j]
+                pc = v_c[j]
+                pl = v_l[j]
+                vc = v_c[j + 1]
+                vl = v_l[j + 1]
+                nic = zz[1, j] * noise_ic
+                nil = zz[2, j] * noise_ilc
             for s in range(substeps):
                 if foh:
                     # the ramp at the substep's middle and end (its start is the last end)
@@ -419,7 +464,7 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
                 pan1 = l1 * fp1 - gk1
                 n1, n2, n3, n4, y0, bound = rk4_step(q1, q2, w1, w2, ic0, icm, ic1, pan0,
                                                      panm, pan1, True)
-                if bound >= SMALL_ANGLE_RAD:
+                if bound >= SMALL_ANGLE_SQ:
                     # outside the polynomials' range (at the stops, say): libm throughout
                     n1, n2, n3, n4, y0, bound = rk4_step(q1, q2, w1, w2, ic0, icm, ic1, pan0,
                                                          panm, pan1, False)
@@ -431,42 +476,59 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
                 w2 = n4
                 ic0 = ic1
                 fp0 = fp1
-        if foh:     # the next chunk's ramp starts at this chunk's last DAC values
-            prev[0] = v_c[stop_n - start - 1]
-            prev[1] = v_l[stop_n - start - 1]
         # 3. sensor, ADC, monitors and the user's quantities at t_n
-        for j in range(stop_n - start):
-            n = start + j
-            n_y = 0.0
-            if use_noise:
-                n_y = z[3 * j] * noise_y
-            y = y_true[j]
-            i_coil = i_c[j]
-            i_lc = i_l[j]
-            y_meas = min(max(y + n_y, -sensor_range), sensor_range)
-            sensor_V, sensor_code = convert(horner(sensor, y_meas), adc_lsb, adc_lo, adc_hi,
-                                            adc_range)
-            pos = sensor_inverse(sensor_V, sensor_code)
-            i_coil_meas = convert(monitor * i_coil, adc_lsb, adc_lo, adc_hi,
-                                  adc_range)[0] / monitor
-            i_lc_meas = convert(monitor * i_lc, adc_lsb, adc_lo, adc_hi, adc_range)[0] / monitor
-            out[OUT_U_COIL, n] = v_c[j]
-            out[OUT_U_LC, n] = v_l[j]
-            out[OUT_I_COIL, n] = i_coil_meas
-            out[OUT_I_LC, n] = i_lc_meas
-            out[OUT_SENSOR, n] = sensor_V
-            out[OUT_POS, n] = pos
-            out[OUT_F_COIL, n] = horner(motor, pos * MM_PER_M) * i_coil_meas
-            out[OUT_F_LC, n] = horner(load_changer, i_lc_meas)
-            if reference:
+        if short and quantise:
+            for j in range(m):
+                n = start + j
+                y_meas = min(max(y_true[j] + zz[0, j] * noise_y, -sensor_range), sensor_range)
+                code = code_of(se0 + y_meas * (se1 + y_meas * (se2 + y_meas * (
+                    se3 + y_meas * (se4 + y_meas * se5)))), adc_lsb, adc_lo, adc_hi)
+                pos = sensor_table[int(code - adc_lo)]
+                i_coil_meas = code_of(monitor * i_c[j], adc_lsb, adc_lo, adc_hi) * adc_lsb \
+                    / monitor
+                i_lc_meas = code_of(monitor * i_l[j], adc_lsb, adc_lo, adc_hi) * adc_lsb \
+                    / monitor
+                pm = pos * MM_PER_M
+                out[OUT_U_COIL, n] = v_c[j + 1]
+                out[OUT_U_LC, n] = v_l[j + 1]
+                out[OUT_I_COIL, n] = i_coil_meas
+                out[OUT_I_LC, n] = i_lc_meas
+                out[OUT_SENSOR, n] = code * adc_lsb
+                out[OUT_POS, n] = pos
+                out[OUT_F_COIL, n] = (mo0 + pm * (mo1 + pm * mo2)) * i_coil_meas
+                out[OUT_F_LC, n] = lc0 + i_lc_meas * (lc1 + i_lc_meas * lc2)
+        else:
+            for j in range(m):
+                n = start + j
+                y_meas = min(max(y_true[j] + zz[0, j] * noise_y, -sensor_range), sensor_range)
+                sensor_V, sensor_code = convert(horner(sensor, y_meas), adc_lsb, adc_lo,
+                                                adc_hi, adc_range)
+                pos = sensor_inverse(sensor_V, sensor_code)
+                i_coil_meas = convert(monitor * i_c[j], adc_lsb, adc_lo, adc_hi,
+                                      adc_range)[0] / monitor
+                i_lc_meas = convert(monitor * i_l[j], adc_lsb, adc_lo, adc_hi,
+                                    adc_range)[0] / monitor
+                out[OUT_U_COIL, n] = v_c[j + 1]
+                out[OUT_U_LC, n] = v_l[j + 1]
+                out[OUT_I_COIL, n] = i_coil_meas
+                out[OUT_I_LC, n] = i_lc_meas
+                out[OUT_SENSOR, n] = sensor_V
+                out[OUT_POS, n] = pos
+                out[OUT_F_COIL, n] = horner(motor, pos * MM_PER_M) * i_coil_meas
+                out[OUT_F_LC, n] = horner(load_changer, i_lc_meas)
+        if reference:
+            for j in range(m):
+                n = start + j
+                y = y_true[j]
                 out[OUT_POS_TRUE, n] = y
                 out[OUT_F_PAN, n] = f_p[j]
-                out[OUT_F_COIL_TRUE, n] = horner(motor, y * MM_PER_M) * i_coil
+                out[OUT_F_COIL_TRUE, n] = horner(motor, y * MM_PER_M) * i_c[j]
+        v_c[0] = v_c[m]
+        v_l[0] = v_l[m]
     x[0] = q1
     x[1] = q2
     x[2] = w1
     x[3] = w2
-    if n_total > 0:
-        prev[0] = p_coil
-        prev[1] = p_lc
+    prev[0] = v_c[0]
+    prev[1] = v_l[0]
     return True
