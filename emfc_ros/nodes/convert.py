@@ -9,7 +9,7 @@ from __future__ import annotations
 import array
 from typing import Mapping, Optional, Tuple
 
-from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String
@@ -205,3 +205,33 @@ def diagnostic_status(name: str, hardware_id: str, level: bytes, message: str,
                             hardware_id=hardware_id,
                             values=[KeyValue(key=str(k), value=str(v))
                                     for k, v in values.items()])
+
+
+def node_diagnostics(node: object, aspect: str, level: bytes, message: str,
+                     values: Mapping[str, object]) -> DiagnosticArray:
+    """
+    A node's periodic ``/diagnostics`` message: one status, stamped with the node's clock.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node (its name, fully qualified name and clock).
+    aspect : str
+        What the status is about; the status is named ``'<node>: <aspect>'``.
+    level : bytes
+        ``DiagnosticStatus.OK``, ``WARN``, ``ERROR`` or ``STALE``.
+    message : str
+        Summary.
+    values : Mapping
+        Values; keys state their unit.
+
+    Returns
+    -------
+    diagnostic_msgs.msg.DiagnosticArray
+        The message, ready to publish.
+    """
+    msg = DiagnosticArray()
+    msg.header.stamp = node.get_clock().now().to_msg()
+    msg.status = [diagnostic_status(f'{node.get_name()}: {aspect}',
+                                    node.get_fully_qualified_name(), level, message, values)]
+    return msg

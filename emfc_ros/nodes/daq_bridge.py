@@ -55,8 +55,8 @@ from emfc_ros.core.errors import BlockError, ConfigError
 from emfc_ros.core.excitation_queue import ExcitationQueue
 from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V
 from emfc_ros.nodes.convert import (
-    BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, diagnostic_status,
-    LATCHED_QOS, msg_to_block)
+    BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
+    node_diagnostics)
 from emfc_ros.nodes.spin import run_node
 
 BACKEND_NAMES = ('sim', 'udp', 'replay')
@@ -984,12 +984,7 @@ class DaqBridgeNode(Node):
             level, message = DiagnosticStatus.ERROR, 'emergency stop latched: outputs safe'
         if self._error or self._state == 'error':
             level, message = DiagnosticStatus.ERROR, self._error or self._last_error
-        msg = DiagnosticArray()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [diagnostic_status(f'{self.get_name()}: device',
-                                        self.get_fully_qualified_name(), level, message,
-                                        values)]
-        self._pub_diag.publish(msg)
+        self._pub_diag.publish(node_diagnostics(self, 'device', level, message, values))
 
 
 def main(args: Optional[List[str]] = None) -> int:

@@ -34,7 +34,7 @@ import yaml
 from emfc_ros.core.blocks import Continuity, SequenceTracker
 from emfc_ros.core.errors import BlockError
 from emfc_ros.nodes.convert import (
-    BLOCK_QOS, diagnostic_status, LATCHED_QOS, msg_to_block, msg_to_description)
+    BLOCK_QOS, LATCHED_QOS, msg_to_block, msg_to_description, node_diagnostics)
 from emfc_ros.nodes.spin import run_node
 
 PARAMETERS = {
@@ -268,12 +268,8 @@ class IdentifierNode(Node):
                   'runs': self._runs, 'last_error': self._last_error}
         values.update(self._tracker.counters())
         level = DiagnosticStatus.WARN if self._last_error else DiagnosticStatus.OK
-        msg = DiagnosticArray()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [diagnostic_status(f'{self.get_name()}: identification',
-                                        self.get_fully_qualified_name(), level,
-                                        self._last_error or 'ok', values)]
-        self._pub_diag.publish(msg)
+        self._pub_diag.publish(node_diagnostics(self, 'identification', level,
+                                                self._last_error or 'ok', values))
 
 
 def main(args: Optional[List[str]] = None) -> int:

@@ -74,8 +74,8 @@ from emfc_ros.core.sim.closed_loop import ClosedLoopSimulator
 from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V, saturation_counts
 from emfc_ros.core.sim.simulator import Simulator
 from emfc_ros.nodes.convert import (
-    BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, diagnostic_status,
-    LATCHED_QOS, msg_to_block)
+    BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
+    node_diagnostics)
 from emfc_ros.nodes.spin import run_node
 
 DEFAULT_BALANCE = 'balance_default.yaml'
@@ -683,13 +683,8 @@ class PlantSimulatorNode(Node):
         level = DiagnosticStatus.WARN if defects else DiagnosticStatus.OK
         if self._sim is None or self._error:
             level = DiagnosticStatus.ERROR
-        msg = DiagnosticArray()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [diagnostic_status(f'{self.get_name()}: simulation',
-                                        self.get_fully_qualified_name(), level,
-                                        self._error or ('excitation defects' if defects
-                                                        else 'ok'), values)]
-        self._pub_diag.publish(msg)
+        message = self._error or ('excitation defects' if defects else 'ok')
+        self._pub_diag.publish(node_diagnostics(self, 'simulation', level, message, values))
 
 
 def _time_msg(ns: int) -> Time:

@@ -49,7 +49,7 @@ from emfc_ros.core.model.linear import linearise
 from emfc_ros.core.model.load import loaded
 from emfc_ros.core.model.parameters import BalanceParameters
 from emfc_ros.core.paths import config_file
-from emfc_ros.nodes.convert import CONTROL_QOS, diagnostic_status
+from emfc_ros.nodes.convert import CONTROL_QOS, node_diagnostics
 from emfc_ros.nodes.spin import run_node
 
 DEFAULT_BALANCE = 'balance_default.yaml'
@@ -327,12 +327,7 @@ class PositionControllerNode(Node):
             level, message = DiagnosticStatus.ERROR, self._error
         elif self._bad_states or (self._runtime and self._runtime.saturated_samples):
             level, message = DiagnosticStatus.WARN, 'bad states or saturated output'
-        msg = DiagnosticArray()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [diagnostic_status(f'{self.get_name()}: loop',
-                                        self.get_fully_qualified_name(), level, message,
-                                        values)]
-        self._pub_diag.publish(msg)
+        self._pub_diag.publish(node_diagnostics(self, 'loop', level, message, values))
 
 
 def main(args: Optional[List[str]] = None) -> int:

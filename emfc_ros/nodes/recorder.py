@@ -53,7 +53,7 @@ from emfc_ros.core.bag import (
 from emfc_ros.core.bag.qos import DURABILITY, HISTORY, LIVELINESS, policy_name, RELIABILITY
 from emfc_ros.core.config import unflatten
 from emfc_ros.core.errors import ConfigError
-from emfc_ros.nodes.convert import diagnostic_status, LATCHED_QOS
+from emfc_ros.nodes.convert import LATCHED_QOS, node_diagnostics
 from emfc_ros.nodes.spin import run_node
 
 EXCLUDED_TOPICS = ('/rosout', '/parameter_events')
@@ -543,12 +543,7 @@ class RecorderNode(Node):
                                         f'written stays repairable with `emfc-bag-repair '
                                         f'{self._output}`')
         self._publish_status()
-        msg = DiagnosticArray()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [diagnostic_status(f'{self.get_name()}: bag',
-                                        self.get_fully_qualified_name(), level, message,
-                                        values)]
-        self._pub_diag.publish(msg)
+        self._pub_diag.publish(node_diagnostics(self, 'bag', level, message, values))
 
 
 def main(args: Optional[List[str]] = None) -> int:

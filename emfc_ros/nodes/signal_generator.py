@@ -36,8 +36,8 @@ from emfc_ros.core.pacing import ClockPacer, ConsumerPacer
 from emfc_ros.core.paths import config_file
 from emfc_ros.core.signals import Experiment, experiment_from_config, load_experiment_file
 from emfc_ros.nodes.convert import (
-    BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, diagnostic_status,
-    LATCHED_QOS)
+    BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS,
+    node_diagnostics)
 from emfc_ros.nodes.spin import run_node
 
 DEFAULT_EXPERIMENT = 'identification_trajectory.yaml'
@@ -364,12 +364,8 @@ class SignalGeneratorNode(Node):
             lag = self._clock_pacer.lag_s(time.monotonic(), self._next_index, rate)
             values['lag_s'] = f'{lag:.6f}'
         level = DiagnosticStatus.ERROR if self._state == 'error' else DiagnosticStatus.OK
-        msg = DiagnosticArray()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [diagnostic_status(f'{self.get_name()}: excitation',
-                                        self.get_fully_qualified_name(), level,
-                                        self._error or self._state, values)]
-        self._pub_diag.publish(msg)
+        self._pub_diag.publish(node_diagnostics(self, 'excitation', level,
+                                                self._error or self._state, values))
 
 
 def main(args: Optional[List[str]] = None) -> int:

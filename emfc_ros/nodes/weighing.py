@@ -50,7 +50,7 @@ from emfc_ros.core.paths import config_file
 from emfc_ros.core.weighing import (compensation_force_N, DynamicWeigher, Reading,
                                     ReadingFilter, WeighingCalibration, WeighingError)
 from emfc_ros.nodes.convert import (BLOCK_QOS, diagnostic_status, LATCHED_QOS, msg_to_block,
-                                    msg_to_description)
+                                    msg_to_description, node_diagnostics)
 from emfc_ros.nodes.spin import run_node
 
 DEFAULT_BALANCE = 'balance_default.yaml'
@@ -403,12 +403,7 @@ class WeighingNode(Node):
             level, message = DiagnosticStatus.WARN, f'weighing; last problem: {self._last_error}'
         else:
             level, message = DiagnosticStatus.OK, 'weighing'
-        msg = DiagnosticArray()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [diagnostic_status(f'{self.get_name()}: weighing',
-                                        self.get_fully_qualified_name(), level, message,
-                                        values)]
-        self._pub_diag.publish(msg)
+        self._pub_diag.publish(node_diagnostics(self, 'weighing', level, message, values))
 
     # -- calibration services ----------------------------------------------------------------
 
