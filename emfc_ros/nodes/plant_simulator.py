@@ -705,7 +705,18 @@ def main(args: Optional[List[str]] = None) -> int:
     int
         Process exit code.
     """
-    return run_node(PlantSimulatorNode, args)
+    return run_node(PlantSimulatorNode, args, warm_up=compile_kernel)
+
+
+def compile_kernel() -> None:
+    """
+    Compile the simulator's numba kernel, or load it from numba's cache, before the node exists.
+
+    The first start after an install compiles for about 12-15 s (``docs/simulator.md``); the
+    node then appears ready to serve, and Ctrl-C during the compilation ends the process.
+    """
+    Simulator(BalanceParameters(), float(PARAMETERS['sample_rate_Hz'][0])).step_block(
+        np.zeros((2, 1)))
 
 
 if __name__ == '__main__':

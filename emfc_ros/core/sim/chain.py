@@ -30,6 +30,13 @@ branch-free with ``np.floor``), so that LLVM can vectorise parts of them; the no
 one row per stream. Sine and cosine are short Taylor polynomials while every stage of an RK4
 step has ``q1**2 + q2**2 < SMALL_ANGLE_SQ`` (hence ``|q1| + |q2| < SMALL_ANGLE_RAD``), otherwise
 the step is recomputed with libm.
+
+Compilation time: only the RK4 step and the accelerations are closures of
+:func:`chain_block` (numba inlines a closure's IR at every call site, which is what keeps the
+mechanics loop free of calls, spills and libm); every other helper is a module-level function
+compiled once (``register_jitable``) that LLVM inlines where it is small. With all helpers as
+closures the first compilation took 45 s; it is about 12-15 s now (measured with an empty
+``NUMBA_CACHE_DIR``; later runs load the cache).
 """
 
 import math
@@ -88,6 +95,163 @@ SMALL_ANGLE_RAD = 5.0e-3
 SMALL_ANGLE_SQ = 0.5 * SMALL_ANGLE_RAD * SMALL_ANGLE_RAD
 #: Samples per chunk of the three passes (scratch arrays of this length stay in the L1 cache).
 CHUNK = 256
+
+
+try:    # compiled once each and inlined by LLVM into the chain (numba), plain Python otherwise
+    from numba.extending import register_jitable as _register_jitable
+
+    def _jitable(function):
+        return _register_jitable(fastmath=True)(function)
+except ImportError:     # pragma: no cover - numba is optional
+    def _jitable(function):
+        return function
+
+
+# Module-level helpers, compiled once each (see the module docstring, Compilation time).
+
+
+@_jitable
+def horner(coeffs, v):
+    """Return ``sum_k coeffs[k] v**k`` by Horner's scheme."""
+    acc = 0.0
+    for k in range(len(coeffs) - 1, -1, -1):
+        acc = acc * v + coeffs[k]
+    return acc
+
+
+@_jitable
+def horner_d(coeffs, v):
+    """Return the derivative of ``horner(coeffs, v)`` with respect to ``v``."""
+    acc = 0.0
+    for k in range(len(coeffs) - 1, 0, -1):
+        acc = acc * v + k * coeffs[k]
+    return acc
+
+
+@_jitable
+def sin_small(v, v2):
+    """Return the sine of a small angle ``v`` [rad] (``v2 = v**2``)."""
+    return v + v * v2 * (-1.0 / 6.0 + v2 * (1.0 / 120.0))
+
+
+@_jitable
+def cos_small(v2):
+    """Return the cosine of a small angle whose square is ``v2`` [rad**2]."""
+    return 1.0 + v2 * (-0.5 + v2 * (1.0 / 24.0))
+
+
+@_jitable
+def convert(v, lsb, lo, hi, span, quantise):
+    """
+    Convert with a DAC or ADC: nearest code, clamped.
+
+    Returns ``(code * lsb, code)``; without quantisation only the clamp to ``+/- span`` (and
+    code 0).
+    """
+    if quantise:
+        code = float(math.floor(min(max(v / lsb, lo - 1.0), hi + 1.0) + 0.5))
+        if code < lo:
+            code = lo
+        elif code > hi:
+            code = hi
+        return code * lsb, code
+    return min(max(v, -span), span), 0.0
+
+
+@_jitable
+def sensor_inverse(v, code, quantise, sensor, sensor_table, adc_lo):
+    """Return the lever-end position [m] of a sensor voltage ``v`` [V] (ADC ``code``)."""
+    if quantise:
+        return sensor_table[int(code - adc_lo)]
+    # Newton from the linear term; the characteristic is monotonic over the range.
+    pos = (v - sensor[0]) / sensor[1]
+    for _ in range(30):
+        step = (horner(sensor, pos) - v) / horner_d(sensor, pos)
+        pos = pos - step
+        if abs(step) <= 1.0e-15 * abs(pos) + 1.0e-300:
+            break
+    return pos
+
+
+@_jitable
+def trig(q1, q2, taylor):
+    """Return sin and cos of ``q1``, ``q2`` and ``q2 - q1``: short polynomials or libm."""
+    if taylor:
+        v1 = q1 * q1
+        v2 = q2 * q2
+        p = q2 - q1
+        vp = p * p
+        return (sin_small(q1, v1), cos_small(v1), sin_small(q2, v2), cos_small(v2),
+                sin_small(p, vp), cos_small(vp))
+    return (math.sin(q1), math.cos(q1), math.sin(q2), math.cos(q2), math.sin(q2 - q1),
+            math.cos(q2 - q1))
+
+
+@_jitable
+def splitmix(counter, noise_key):
+    """Return the SplitMix64 output at ``counter`` of the stream ``noise_key``."""
+    z = noise_key + counter * GOLDEN
+    z = (z ^ (z >> SHIFT30)) * MIX1
+    z = (z ^ (z >> SHIFT27)) * MIX2
+    return z ^ (z >> SHIFT31)
+
+
+@_jitable
+def uniform(counter, noise_key):
+    """Return ``p`` in (0, 1) from the SplitMix64 output at ``counter``."""
+    return (float(np.int64(splitmix(counter, noise_key) >> SHIFT11)) + 0.5) * INV_2_POW_53
+
+
+@_jitable
+def normal_central(p):
+    """Return Acklam's inverse normal CDF for ``P_LOW <= p <= 1 - P_LOW``."""
+    q = p - 0.5
+    r = q * q
+    return ((((((A0 * r + A1) * r + A2) * r + A3) * r + A4) * r + A5) * q
+            / (((((B0 * r + B1) * r + B2) * r + B3) * r + B4) * r + 1.0))
+
+
+@_jitable
+def normal_tail(p):
+    """Return the same outside, ``p < P_LOW`` or ``p > 1 - P_LOW`` (relative error 1.2e-9)."""
+    q = math.sqrt(-2.0 * math.log(min(p, 1.0 - p)))
+    v = ((((((C0 * q + C1) * q + C2) * q + C3) * q + C4) * q + C5)
+         / ((((D0 * q + D1) * q + D2) * q + D3) * q + 1.0))
+    return v if p < 0.5 else -v
+
+
+@_jitable
+def normals(counter0, m, zz, p_tmp, noise_key):
+    """
+    Fill ``zz[r, j]`` with the standard normal at counter ``counter0 + 3 j + r``.
+
+    The hash (scalar), the central rational function (vectorised), then the tails.
+    """
+    for j in range(m):
+        c = counter0 + np.uint64(3 * j)
+        p_tmp[0, j] = uniform(c, noise_key)
+        p_tmp[1, j] = uniform(c + ONE, noise_key)
+        p_tmp[2, j] = uniform(c + TWO, noise_key)
+    for r in range(3):
+        for j in range(m):
+            zz[r, j] = normal_central(p_tmp[r, j])
+    for r in range(3):
+        for j in range(m):
+            p = p_tmp[r, j]
+            if p < P_LOW or p > 1.0 - P_LOW:
+                zz[r, j] = normal_tail(p)
+
+
+@_jitable
+def current(coeffs, v, n_i, limit):
+    """Return the amplifier current ``clip(I(v) + n_i, +/- limit)`` [A]."""
+    return min(max(horner(coeffs, v) + n_i, -limit), limit)
+
+
+@_jitable
+def code_of(v, lsb, lo, hi):
+    """Return the converter's code: nearest, clamped (branch-free, so that loops vectorise)."""
+    return min(max(np.floor(min(max(v / lsb, lo - 1.0), hi + 1.0) + 0.5), lo), hi)
 
 
 def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps, par,
@@ -176,8 +340,6 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
     noise_ilc = par[NOISE_ILC]
     dt = par[DT]
     h = dt / substeps
-    hh = 0.5 * h
-    h6 = h / 6.0
     reference = out.shape[0] > N_MEASURED
     # k(y) in powers of y in metres; up to a quadratic in scalars (zero padded: the same
     # operations as Horner's scheme on the shorter polynomial)
@@ -189,74 +351,8 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
     km1 = motor_m[1]
     km2 = motor_m[2]
     short_motor = n_motor <= 3
-
-    def horner(coeffs, v):
-        # sum_k coeffs[k] v**k; unrolled for up to 6 coefficients (the same operations)
-        m = len(coeffs)
-        if m == 3:
-            return coeffs[0] + v * (coeffs[1] + v * coeffs[2])
-        if m == 6:
-            return coeffs[0] + v * (coeffs[1] + v * (coeffs[2] + v * (
-                coeffs[3] + v * (coeffs[4] + v * coeffs[5]))))
-        if m == 2:
-            return coeffs[0] + v * coeffs[1]
-        if m == 4:
-            return coeffs[0] + v * (coeffs[1] + v * (coeffs[2] + v * coeffs[3]))
-        if m == 5:
-            return coeffs[0] + v * (coeffs[1] + v * (coeffs[2] + v * (
-                coeffs[3] + v * coeffs[4])))
-        acc = 0.0
-        for k in range(m - 1, -1, -1):
-            acc = acc * v + coeffs[k]
-        return acc
-
-    def horner_d(coeffs, v):
-        acc = 0.0
-        for k in range(len(coeffs) - 1, 0, -1):
-            acc = acc * v + k * coeffs[k]
-        return acc
-
-    def sin_small(v, v2):
-        return v + v * v2 * (-1.0 / 6.0 + v2 * (1.0 / 120.0))
-
-    def cos_small(v2):
-        return 1.0 + v2 * (-0.5 + v2 * (1.0 / 24.0))
-
-    def convert(v, lsb, lo, hi, span):
-        # DAC or ADC: nearest code, clamped; returns (code * lsb, code), without
-        # quantisation only the clamp (and code 0).
-        if quantise:
-            code = float(math.floor(min(max(v / lsb, lo - 1.0), hi + 1.0) + 0.5))
-            if code < lo:
-                code = lo
-            elif code > hi:
-                code = hi
-            return code * lsb, code
-        return min(max(v, -span), span), 0.0
-
-    def sensor_inverse(v, code):
-        if quantise:
-            return sensor_table[int(code - adc_lo)]
-        # Newton from the linear term; the characteristic is monotonic over the range.
-        pos = (v - sensor[0]) / sensor[1]
-        for _ in range(30):
-            step = (horner(sensor, pos) - v) / horner_d(sensor, pos)
-            pos = pos - step
-            if abs(step) <= 1.0e-15 * abs(pos) + 1.0e-300:
-                break
-        return pos
-
-    def trig(q1, q2, taylor):
-        # sin and cos of q1, q2 and q2 - q1: short Taylor polynomials or libm
-        if taylor:
-            v1 = q1 * q1
-            v2 = q2 * q2
-            p = q2 - q1
-            vp = p * p
-            return (sin_small(q1, v1), cos_small(v1), sin_small(q2, v2), cos_small(v2),
-                    sin_small(p, vp), cos_small(vp))
-        return (math.sin(q1), math.cos(q1), math.sin(q2), math.cos(q2), math.sin(q2 - q1),
-                math.cos(q2 - q1))
+    hh = 0.5 * h
+    h6 = h / 6.0
 
     def accel(q1, q2, w1, w2, i_coil, pan1, taylor):
         # accelerations [q1'', q2''] at one RK4 stage; pan1 = l1 F_p - gk1
@@ -312,54 +408,6 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
                 w1 + h6 * (e1 + 2.0 * e2 + 2.0 * e3 + e4),
                 w2 + h6 * (f1 + 2.0 * f2 + 2.0 * f3 + f4), y0, bound)
 
-    def splitmix(counter):
-        z = noise_key + counter * GOLDEN
-        z = (z ^ (z >> SHIFT30)) * MIX1
-        z = (z ^ (z >> SHIFT27)) * MIX2
-        return z ^ (z >> SHIFT31)
-
-    def uniform(counter):
-        # p in (0, 1) from the SplitMix64 output at ``counter``
-        return (float(np.int64(splitmix(counter) >> SHIFT11)) + 0.5) * INV_2_POW_53
-
-    def normal_central(p):
-        # Acklam's rational approximation of the inverse normal CDF, P_LOW <= p <= 1 - P_LOW
-        q = p - 0.5
-        r = q * q
-        return ((((((A0 * r + A1) * r + A2) * r + A3) * r + A4) * r + A5) * q
-                / (((((B0 * r + B1) * r + B2) * r + B3) * r + B4) * r + 1.0))
-
-    def normal_tail(p):
-        # the same outside, p < P_LOW or p > 1 - P_LOW (relative error 1.2e-9 overall)
-        q = math.sqrt(-2.0 * math.log(min(p, 1.0 - p)))
-        v = ((((((C0 * q + C1) * q + C2) * q + C3) * q + C4) * q + C5)
-             / ((((D0 * q + D1) * q + D2) * q + D3) * q + 1.0))
-        return v if p < 0.5 else -v
-
-    def normals(counter0, m, zz, p_tmp):
-        # zz[r, j] = standard normal at counter0 + 3 j + r: the hash (scalar), the central
-        # rational function (vectorised), then the tails
-        for j in range(m):
-            c = counter0 + np.uint64(3 * j)
-            p_tmp[0, j] = uniform(c)
-            p_tmp[1, j] = uniform(c + ONE)
-            p_tmp[2, j] = uniform(c + TWO)
-        for r in range(3):
-            for j in range(m):
-                zz[r, j] = normal_central(p_tmp[r, j])
-        for r in range(3):
-            for j in range(m):
-                p = p_tmp[r, j]
-                if p < P_LOW or p > 1.0 - P_LOW:
-                    zz[r, j] = normal_tail(p)
-
-    def current(coeffs, v, n_i, limit):
-        return min(max(horner(coeffs, v) + n_i, -limit), limit)
-
-    def code_of(v, lsb, lo, hi):
-        # the converter's code: nearest, clamped (branch-free, so that the loops vectorise)
-        return min(max(np.floor(min(max(v / lsb, lo - 1.0), hi + 1.0) + 0.5), lo), hi)
-
     # the characteristics as scalars (zero padded: the same operations as Horner's scheme on
     # the shorter polynomial), so that passes 1 and 3 carry no inner loops
     short = (len(amp_coil) <= 3 and len(amp_lc) <= 3 and len(load_changer) <= 3
@@ -404,7 +452,7 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
     for start in range(0, n_total, CHUNK):
         m = min(start + CHUNK, n_total) - start
         if use_noise:
-            normals(np.uint64(first + start) * THREE + ONE, m, zz, p_tmp)
+            normals(np.uint64(first + start) * THREE + ONE, m, zz, p_tmp, noise_key)
         # 1. DAC, amplifiers, pan force (independent of the state)
         if short:
             for j in range(m):
@@ -428,8 +476,10 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
         else:
             for j in range(m):
                 n = start + j
-                v_c[j + 1] = convert(u[0, n], dac_lsb, dac_lo, dac_hi, dac_range)[0]
-                v_l[j + 1] = convert(u[1, n], dac_lsb, dac_lo, dac_hi, dac_range)[0]
+                v_c[j + 1] = convert(u[0, n], dac_lsb, dac_lo, dac_hi, dac_range,
+                                     quantise)[0]
+                v_l[j + 1] = convert(u[1, n], dac_lsb, dac_lo, dac_hi, dac_range,
+                                     quantise)[0]
                 i_c[j] = current(amp_coil, v_c[j + hold_off], zz[1, j] * noise_ic, i_coil_max)
                 i_l[j] = current(amp_lc, v_l[j + hold_off], zz[2, j] * noise_ilc, i_lc_max)
                 f_p[j] = horner(load_changer, i_l[j])
@@ -502,12 +552,13 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
                 n = start + j
                 y_meas = min(max(y_true[j] + zz[0, j] * noise_y, -sensor_range), sensor_range)
                 sensor_V, sensor_code = convert(horner(sensor, y_meas), adc_lsb, adc_lo,
-                                                adc_hi, adc_range)
-                pos = sensor_inverse(sensor_V, sensor_code)
+                                                adc_hi, adc_range, quantise)
+                pos = sensor_inverse(sensor_V, sensor_code, quantise, sensor, sensor_table,
+                                     adc_lo)
                 i_coil_meas = convert(monitor * i_c[j], adc_lsb, adc_lo, adc_hi,
-                                      adc_range)[0] / monitor
+                                      adc_range, quantise)[0] / monitor
                 i_lc_meas = convert(monitor * i_l[j], adc_lsb, adc_lo, adc_hi,
-                                    adc_range)[0] / monitor
+                                    adc_range, quantise)[0] / monitor
                 out[OUT_U_COIL, n] = v_c[j + 1]
                 out[OUT_U_LC, n] = v_l[j + 1]
                 out[OUT_I_COIL, n] = i_coil_meas
