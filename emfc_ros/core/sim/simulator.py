@@ -39,8 +39,7 @@ def _jitted() -> Callable:
     global _JIT
     if _JIT is None:
         import numba
-        # fastmath: FMA contraction and reassociation (about 20 % faster); still deterministic
-        _JIT = numba.njit(cache=True, fastmath=True)(chain.chain_block)
+        _JIT = numba.njit(cache=True, **chain.JIT_OPTIONS)(chain.chain_block)
     return _JIT
 
 
