@@ -85,41 +85,56 @@ def loop_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps,
         if not (np.isfinite(u[0, j]) and np.isfinite(u[1, j])):
             return False
     size = ring_V.shape[0]
-    u1 = np.empty((2, 1))
-    out1 = np.empty((chain.N_OUT, 1))
+    # The chain runs from one controller sample to the next in one call: the setpoints of
+    # those samples were all written by earlier controller samples (delay >= 1), and a block
+    # of the chain equals its samples one by one bit for bit.
+    u_run = np.empty((2, ratio))
+    out_run = np.empty((chain.N_OUT, ratio))
     i_max = par[chain.rk4.I_COIL_MAX]
     c0 = amp_coil[0]
     c1 = amp_coil[1]
-    for j in range(n_total):
-        idx = first + j
-        slot = idx % size
-        u1[0, 0] = ring_V[slot] + u[0, j]
-        u1[1, 0] = u[1, j]
-        run_chain(x, prev, u1, idx, noise_key, use_noise, quantise, foh, substeps, par,
+    j = 0
+    while j < n_total:
+        idx0 = first + j
+        length = min((ratio - idx0 % ratio) % ratio + 1, n_total - j)
+        if length != ratio:     # the block's edges
+            u1 = np.empty((2, length))
+            out1 = np.empty((chain.N_OUT, length))
+        else:
+            u1 = u_run
+            out1 = out_run
+        for k in range(length):
+            slot = (idx0 + k) % size
+            u1[0, k] = ring_V[slot] + u[0, j + k]
+            u1[1, k] = u[1, j + k]
+        run_chain(x, prev, u1, idx0, noise_key, use_noise, quantise, foh, substeps, par,
                   amp_coil, amp_lc, motor, sensor, load_changer, sensor_table, out1)
-        for r in range(chain.N_OUT):
-            out[r, j] = out1[r, 0]
-        y_true = out1[chain.OUT_POS_TRUE, 0]
-        k_true = 0.0
-        for k in range(len(motor) - 1, -1, -1):
-            k_true = k_true * (y_true * MM_PER_M) + motor[k]
-        out[chain.N_OUT, j] = out1[chain.OUT_F_COIL_TRUE, 0] / k_true
-        out[chain.N_OUT + 1, j] = ring_N[slot]
+        for k in range(length):
+            for r in range(chain.N_OUT):
+                out[r, j + k] = out1[r, k]
+            y_true = out1[chain.OUT_POS_TRUE, k]
+            k_true = 0.0
+            for m in range(len(motor) - 1, -1, -1):
+                k_true = k_true * (y_true * MM_PER_M) + motor[m]
+            out[chain.N_OUT, j + k] = out1[chain.OUT_F_COIL_TRUE, k] / k_true
+            out[chain.N_OUT + 1, j + k] = ring_N[(idx0 + k) % size]
+        idx = idx0 + length - 1
+        j += length
         if idx % ratio == 0:
-            y_meas = out1[chain.OUT_POS, 0]
+            y_meas = out1[chain.OUT_POS, length - 1]
             force = controller_step(coef, cstate, setpoint_m - y_meas)
             k_meas = 0.0
-            for k in range(len(motor) - 1, -1, -1):
-                k_meas = k_meas * (y_meas * MM_PER_M) + motor[k]
+            for m in range(len(motor) - 1, -1, -1):
+                k_meas = k_meas * (y_meas * MM_PER_M) + motor[m]
             current = min(max(force / k_meas, -i_max), i_max)
             # invert the amplifier I(U) (ascending powers) by Newton from the linear term
             volt = (current - c0) / c1
             for _ in range(4):
                 value = 0.0
                 slope = 0.0
-                for k in range(len(amp_coil) - 1, -1, -1):
+                for m in range(len(amp_coil) - 1, -1, -1):
                     slope = slope * volt + value
-                    value = value * volt + amp_coil[k]
+                    value = value * volt + amp_coil[m]
                 volt = volt - (value - current) / slope
             for i in range(ratio):
                 ring_V[(idx + delay + i) % size] = volt
