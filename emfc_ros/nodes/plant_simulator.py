@@ -46,6 +46,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 from pathlib import Path
+import sys
 import time
 from typing import List, Optional
 
@@ -714,7 +715,11 @@ def compile_kernel() -> None:
 
     The first start after an install compiles for about 12-15 s (``docs/simulator.md``); the
     node then appears ready to serve, and Ctrl-C during the compilation ends the process.
+    One line on stderr says so (there is no ROS logger yet).
     """
+    print('plant_simulator: preparing the simulator kernel (numba: loaded from its cache, or '
+          'compiled in about 15 s on the first start after an install)', file=sys.stderr,
+          flush=True)
     Simulator(BalanceParameters(), float(PARAMETERS['sample_rate_Hz'][0])).step_block(
         np.zeros((2, 1)))
 

@@ -9,6 +9,7 @@ empty numba cache and interrupt it while it compiles.
 """
 
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -86,10 +87,16 @@ def test_plant_simulator_interrupted_while_compiling_exits_zero(tmp_path):
                              '--ros-args', '-p', 'autostart:=false'], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
-        time.sleep(4.0)             # imports done, compiling (12-17 s with an empty cache)
+        # imports done when the warm-up announces itself; then compiling for 12-17 s
+        ready, _, _ = select.select([proc.stdout], [], [], 120.0)
+        assert ready, 'no output within 120 s'
+        first = proc.stdout.readline()
+        assert 'preparing the simulator kernel' in first, first
+        time.sleep(1.0)
         assert proc.poll() is None
         os.kill(proc.pid, signal.SIGINT)
         out, _ = proc.communicate(timeout=60.0)
+        out = first + out
     finally:
         if proc.poll() is None:
             proc.kill()
