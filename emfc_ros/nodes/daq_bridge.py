@@ -57,7 +57,7 @@ from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
     node_diagnostics)
-from emfc_ros.nodes.spin import run_node
+from emfc_ros.nodes.spin import node_main
 
 BACKEND_NAMES = ('sim', 'udp', 'replay')
 EXCITATION_MODES = ('stream', 'function_generator')
@@ -987,21 +987,7 @@ class DaqBridgeNode(Node):
         self._pub_diag.publish(node_diagnostics(self, 'device', level, message, values))
 
 
-def main(args: Optional[List[str]] = None) -> int:
-    """
-    Run the daq_bridge node until shutdown.
-
-    Parameters
-    ----------
-    args : list of str, optional
-        Command-line arguments (``--ros-args ...``).
-
-    Returns
-    -------
-    int
-        Process exit code.
-    """
-    return run_node(DaqBridgeNode, args)
+main = node_main(DaqBridgeNode, 'daq_bridge')
 
 
 if __name__ == '__main__':

@@ -35,7 +35,7 @@ from emfc_ros.core.blocks import Continuity, SequenceTracker
 from emfc_ros.core.errors import BlockError
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, LATCHED_QOS, msg_to_block, msg_to_description, node_diagnostics)
-from emfc_ros.nodes.spin import run_node
+from emfc_ros.nodes.spin import node_main
 
 PARAMETERS = {
     'bag': ('', 'bag folder for ~/identify_bag [path]'),
@@ -272,21 +272,7 @@ class IdentifierNode(Node):
                                                 self._last_error or 'ok', values))
 
 
-def main(args: Optional[List[str]] = None) -> int:
-    """
-    Run the identifier node until shutdown.
-
-    Parameters
-    ----------
-    args : list of str, optional
-        Command-line arguments (``--ros-args ...``).
-
-    Returns
-    -------
-    int
-        Process exit code.
-    """
-    return run_node(IdentifierNode, args)
+main = node_main(IdentifierNode, 'identifier')
 
 
 if __name__ == '__main__':

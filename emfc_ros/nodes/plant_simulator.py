@@ -77,7 +77,7 @@ from emfc_ros.core.sim.simulator import Simulator
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
     node_diagnostics)
-from emfc_ros.nodes.spin import run_node
+from emfc_ros.nodes.spin import node_main
 
 DEFAULT_BALANCE = 'balance_default.yaml'
 TIME_MODES = ('owner', 'wall', 'lockstep')
@@ -692,23 +692,6 @@ def _time_msg(ns: int) -> Time:
     return Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
 
 
-def main(args: Optional[List[str]] = None) -> int:
-    """
-    Run the plant_simulator node until shutdown.
-
-    Parameters
-    ----------
-    args : list of str, optional
-        Command-line arguments (``--ros-args ...``).
-
-    Returns
-    -------
-    int
-        Process exit code.
-    """
-    return run_node(PlantSimulatorNode, args, warm_up=compile_kernel)
-
-
 def compile_kernel() -> None:
     """
     Compile the simulator's numba kernel, or load it from numba's cache, before the node exists.
@@ -722,6 +705,9 @@ def compile_kernel() -> None:
           flush=True)
     Simulator(BalanceParameters(), float(PARAMETERS['sample_rate_Hz'][0])).step_block(
         np.zeros((2, 1)))
+
+
+main = node_main(PlantSimulatorNode, 'plant_simulator', warm_up=compile_kernel)
 
 
 if __name__ == '__main__':

@@ -50,7 +50,7 @@ from emfc_ros.core.model.load import loaded
 from emfc_ros.core.model.parameters import BalanceParameters
 from emfc_ros.core.paths import config_file
 from emfc_ros.nodes.convert import CONTROL_QOS, node_diagnostics
-from emfc_ros.nodes.spin import run_node
+from emfc_ros.nodes.spin import node_main
 
 DEFAULT_BALANCE = 'balance_default.yaml'
 OUTPUTS = ('joint_commands', 'commands')
@@ -330,21 +330,7 @@ class PositionControllerNode(Node):
         self._pub_diag.publish(node_diagnostics(self, 'loop', level, message, values))
 
 
-def main(args: Optional[List[str]] = None) -> int:
-    """
-    Run the position_controller node until shutdown.
-
-    Parameters
-    ----------
-    args : list of str, optional
-        Command-line arguments (``--ros-args ...``).
-
-    Returns
-    -------
-    int
-        Process exit code.
-    """
-    return run_node(PositionControllerNode, args)
+main = node_main(PositionControllerNode, 'position_controller')
 
 
 if __name__ == '__main__':

@@ -54,7 +54,7 @@ from emfc_ros.core.bag.qos import DURABILITY, HISTORY, LIVELINESS, policy_name, 
 from emfc_ros.core.config import unflatten
 from emfc_ros.core.errors import ConfigError
 from emfc_ros.nodes.convert import LATCHED_QOS, node_diagnostics
-from emfc_ros.nodes.spin import run_node
+from emfc_ros.nodes.spin import node_main
 
 EXCLUDED_TOPICS = ('/rosout', '/parameter_events')
 DESCRIPTION_SUFFIX = 'excitation/description'
@@ -546,21 +546,8 @@ class RecorderNode(Node):
         self._pub_diag.publish(node_diagnostics(self, 'bag', level, message, values))
 
 
-def main(args: Optional[List[str]] = None) -> int:
-    """
-    Run the recorder node until shutdown; the bag is closed properly on Ctrl-C.
-
-    Parameters
-    ----------
-    args : list of str, optional
-        Command-line arguments (``--ros-args ...``).
-
-    Returns
-    -------
-    int
-        Process exit code.
-    """
-    return run_node(RecorderNode, args)
+main = node_main(RecorderNode, 'recorder',
+                 note='The bag is closed properly on Ctrl-C.')
 
 
 if __name__ == '__main__':

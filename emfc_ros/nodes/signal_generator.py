@@ -38,7 +38,7 @@ from emfc_ros.core.signals import Experiment, experiment_from_config, load_exper
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS,
     node_diagnostics)
-from emfc_ros.nodes.spin import run_node
+from emfc_ros.nodes.spin import node_main
 
 DEFAULT_EXPERIMENT = 'identification_trajectory.yaml'
 PACING = ('wall', 'consumer')
@@ -368,21 +368,7 @@ class SignalGeneratorNode(Node):
                                                 self._error or self._state, values))
 
 
-def main(args: Optional[List[str]] = None) -> int:
-    """
-    Run the signal_generator node until shutdown.
-
-    Parameters
-    ----------
-    args : list of str, optional
-        Command-line arguments (``--ros-args ...``).
-
-    Returns
-    -------
-    int
-        Process exit code.
-    """
-    return run_node(SignalGeneratorNode, args)
+main = node_main(SignalGeneratorNode, 'signal_generator')
 
 
 if __name__ == '__main__':

@@ -61,6 +61,37 @@ def run_node(factory: Callable[[], Node], args: Optional[List[str]] = None,
     return 0
 
 
+def node_main(factory: Callable[[], Node], name: str,
+              warm_up: Optional[Callable[[], object]] = None,
+              note: str = '') -> Callable[[Optional[List[str]]], int]:
+    """
+    Build a node module's ``main(args=None) -> int`` (its console-script entry point).
+
+    Parameters
+    ----------
+    factory : callable
+        Builds the node (see :func:`run_node`).
+    name : str
+        Node name, for the docstring.
+    warm_up : callable, optional
+        See :func:`run_node`.
+    note : str, optional
+        A sentence added to the docstring.
+
+    Returns
+    -------
+    callable
+        ``main(args)``: run the node until shutdown, return the process exit code.
+    """
+    def main(args: Optional[List[str]] = None) -> int:
+        return run_node(factory, args, warm_up=warm_up)
+
+    main.__doc__ = (f'Run the {name} node until shutdown.{" " + note if note else ""}\n\n'
+                    '``args``: command-line arguments (``--ros-args ...``); returns the '
+                    'process exit code.')
+    return main
+
+
 def _warm_up(warm_up: Callable[[], object]) -> bool:
     """Run ``warm_up`` with a SIGINT handler that records the request; False if interrupted."""
     requests = []

@@ -32,7 +32,7 @@ import dataclasses
 import math
 from pathlib import Path
 import time
-from typing import List, Optional
+from typing import Optional
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -51,7 +51,7 @@ from emfc_ros.core.weighing import (compensation_force_N, DynamicWeigher, Readin
                                     ReadingFilter, WeighingCalibration, WeighingError)
 from emfc_ros.nodes.convert import (BLOCK_QOS, diagnostic_status, LATCHED_QOS, msg_to_block,
                                     msg_to_description, node_diagnostics)
-from emfc_ros.nodes.spin import run_node
+from emfc_ros.nodes.spin import node_main
 
 DEFAULT_BALANCE = 'balance_default.yaml'
 #: Readings come in bursts when the stream runs faster than real time (simulation).
@@ -491,21 +491,7 @@ class WeighingNode(Node):
         return self._counts['blocks_received']
 
 
-def main(args: Optional[List[str]] = None) -> int:
-    """
-    Run the weighing node until shutdown.
-
-    Parameters
-    ----------
-    args : list of str, optional
-        Command-line arguments (``--ros-args ...``).
-
-    Returns
-    -------
-    int
-        Process exit code.
-    """
-    return run_node(WeighingNode, args)
+main = node_main(WeighingNode, 'weighing')
 
 
 if __name__ == '__main__':

@@ -149,9 +149,10 @@ def test_lockstep_with_generator_is_exact_and_matches_the_core(executor, ros_con
     assert probe.states[0].name == ['lever']
 
 
-def test_bad_excitation_is_counted_and_the_node_keeps_going(executor, ros_context):
+def _owner_plant_with_feeder(executor, ros_context, overrides):
+    """A plant in ``owner`` mode, a probe and a feeder's excitation publisher, connected."""
     plant = PlantSimulatorNode(context=ros_context, parameter_overrides=[
-        Parameter('time_mode', value='owner'), Parameter('noise', value=False)])
+        Parameter('time_mode', value='owner')] + overrides)
     probe = Probe(ros_context)
     feeder = rclpy.create_node('feeder', context=ros_context)
     pub = feeder.create_publisher(Float64MultiArray, 'excitation', BLOCK_QOS)
@@ -159,6 +160,12 @@ def test_bad_excitation_is_counted_and_the_node_keeps_going(executor, ros_contex
         executor.add_node(node)
     assert ros_harness.spin_until(executor, lambda: pub.get_subscription_count() >= 1
                                   and plant.count_subscribers('measurements') >= 1, TIMEOUT_S)
+    return plant, probe, feeder, pub
+
+
+def test_bad_excitation_is_counted_and_the_node_keeps_going(executor, ros_context):
+    plant, probe, feeder, pub = _owner_plant_with_feeder(executor, ros_context, [
+        Parameter('noise', value=False)])
     bad = [block_to_msg(0, RATE, 1, np.zeros((3, 10))),        # three channels
            block_to_msg(0, 5000.0, 1, np.zeros((2, 10)))]      # wrong sample rate
     broken = block_to_msg(0, RATE, 1, np.zeros((2, 10)))
@@ -270,16 +277,9 @@ def test_lockstep_refuses_a_fractional_period(executor, ros_context):
 def test_in_loop_controller_holds_a_100_g_step_over_dds(executor, ros_context):
     """control.enabled: the loop runs inside the node's sample loop; excitation adds to it."""
     rate = 20000.0
-    plant = PlantSimulatorNode(context=ros_context, parameter_overrides=[
-        Parameter('time_mode', value='owner'), Parameter('sample_rate_Hz', value=rate),
-        Parameter('seed', value=3), Parameter('control.enabled', value=True)])
-    probe = Probe(ros_context)
-    feeder = rclpy.create_node('feeder', context=ros_context)
-    pub = feeder.create_publisher(Float64MultiArray, 'excitation', BLOCK_QOS)
-    for node in (plant, probe.node, feeder):
-        executor.add_node(node)
-    assert ros_harness.spin_until(executor, lambda: pub.get_subscription_count() >= 1
-                                  and plant.count_subscribers('measurements') >= 1, TIMEOUT_S)
+    plant, probe, feeder, pub = _owner_plant_with_feeder(executor, ros_context, [
+        Parameter('sample_rate_Hz', value=rate), Parameter('seed', value=3),
+        Parameter('control.enabled', value=True)])
     block = 2000
     pub.publish(block_to_msg(0, rate, 1, np.zeros((2, block))))
     assert ros_harness.spin_until(executor, lambda: probe.samples() >= block, TIMEOUT_S)
