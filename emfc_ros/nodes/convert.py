@@ -7,11 +7,13 @@ Nodes call these; the core never sees a message.
 from __future__ import annotations
 
 import array
-from typing import Mapping, Optional, Tuple
+from typing import Callable, Mapping, Optional, Tuple
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
+from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String
 
 from emfc_ros.core import blocks
@@ -235,3 +237,24 @@ def node_diagnostics(node: object, aspect: str, level: bytes, message: str,
     msg.status = [diagnostic_status(f'{node.get_name()}: {aspect}',
                                     node.get_fully_qualified_name(), level, message, values)]
     return msg
+
+
+def subscribe_device_inputs(node: Node, on_excitation: Callable, on_joint_command: Callable,
+                            on_array_command: Callable) -> None:
+    """
+    Subscribe a node to the inputs of the device interface (design section 4).
+
+    The plant simulator and the daq_bridge take the same inputs: excitation blocks on
+    ``excitation`` and controller commands on ``joint_commands`` (JointState, effort [N]) and
+    ``commands`` (Float64MultiArray, [N]).
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node.
+    on_excitation, on_joint_command, on_array_command : callable
+        The callbacks, in that order.
+    """
+    node.create_subscription(Float64MultiArray, 'excitation', on_excitation, BLOCK_QOS)
+    node.create_subscription(JointState, 'joint_commands', on_joint_command, CONTROL_QOS)
+    node.create_subscription(Float64MultiArray, 'commands', on_array_command, CONTROL_QOS)

@@ -56,7 +56,7 @@ from emfc_ros.core.excitation_queue import ExcitationQueue
 from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
-    node_diagnostics)
+    node_diagnostics, subscribe_device_inputs)
 from emfc_ros.nodes.spin import node_main
 
 BACKEND_NAMES = ('sim', 'udp', 'replay')
@@ -236,12 +236,8 @@ class DaqBridgeNode(Node):
         self._pub_ack = self.create_publisher(UInt64, 'excitation/consumed', CONTROL_QOS)
         self._pub_state = self.create_publisher(JointState, 'joint_states', STATE_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self.create_subscription(Float64MultiArray, 'excitation', self._on_excitation,
-                                 BLOCK_QOS)
-        self.create_subscription(JointState, 'joint_commands', self._on_joint_command,
-                                 CONTROL_QOS)
-        self.create_subscription(Float64MultiArray, 'commands', self._on_array_command,
-                                 CONTROL_QOS)
+        subscribe_device_inputs(self, self._on_excitation, self._on_joint_command,
+                                self._on_array_command)
         self.create_service(Trigger, '~/start', self._srv_start)
         self.create_service(Trigger, '~/stop', self._srv_stop)
         self.create_service(Trigger, '~/emergency_stop', self._srv_estop)

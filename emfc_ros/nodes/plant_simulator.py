@@ -76,7 +76,7 @@ from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V, saturation_coun
 from emfc_ros.core.sim.simulator import Simulator
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
-    node_diagnostics)
+    node_diagnostics, subscribe_device_inputs)
 from emfc_ros.nodes.spin import node_main
 
 DEFAULT_BALANCE = 'balance_default.yaml'
@@ -235,12 +235,8 @@ class PlantSimulatorNode(Node):
         self._pub_clock = self.create_publisher(Clock, '/clock', 10) \
             if self._mode in ('owner', 'lockstep') else None
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self.create_subscription(Float64MultiArray, 'excitation', self._on_excitation,
-                                 BLOCK_QOS)
-        self.create_subscription(JointState, 'joint_commands', self._on_joint_command,
-                                 CONTROL_QOS)
-        self.create_subscription(Float64MultiArray, 'commands', self._on_array_command,
-                                 CONTROL_QOS)
+        subscribe_device_inputs(self, self._on_excitation, self._on_joint_command,
+                                self._on_array_command)
         self.create_service(Trigger, 'reset', self._srv_reset)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._publish_descriptions()
