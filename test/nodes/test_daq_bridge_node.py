@@ -121,7 +121,9 @@ def test_udp_bridge_publishes_the_emulator_samples_with_contiguous_indices(
     bridge = udp_bridge(ros_context, emulator)
     probe = Probe(ros_context)
     setup_nodes(executor, bridge, probe.node)
-    assert ros_harness.spin_until(executor, lambda: len(probe.blocks) >= 12, TIMEOUT_S)
+    # The latched description and the blocks are separate topics, matched in either order.
+    assert ros_harness.spin_until(executor, lambda: len(probe.blocks) >= 12
+                                  and probe.descriptions, TIMEOUT_S)
     firsts = [b[0] for b in probe.blocks]
     assert firsts == list(range(firsts[0], firsts[0] + 500 * len(firsts), 500))
     assert len({b[1] for b in probe.blocks}) == 1
@@ -421,6 +423,7 @@ def test_replay_republishes_a_recorded_bag_with_the_same_indices(
     t0 = time.monotonic()
     assert ros_harness.spin_until(executor,
                                   lambda: probe.samples() >= recorded.n_samples, TIMEOUT_S)
+    assert ros_harness.spin_until(executor, lambda: probe.descriptions, TIMEOUT_S)
     elapsed = time.monotonic() - t0
     firsts = [b[0] for b in probe.blocks]
     assert firsts == list(recorded.block_first_index)
@@ -474,8 +477,8 @@ def test_node_process_with_the_shipped_params_file(executor, ros_context, proces
                             '-p', f'udp.device_port:={emulator.port}'], cwd=repo)
     probe = Probe(ros_context)
     setup_nodes(executor, probe.node)
-    assert ros_harness.spin_until(executor, lambda: len(probe.blocks) >= 3, TIMEOUT_S), \
-        proc.output()
+    assert ros_harness.spin_until(executor, lambda: len(probe.blocks) >= 3
+                                  and probe.descriptions, TIMEOUT_S), proc.output()
     desc = msg_to_description(probe.descriptions[-1])
     assert desc.channel_names == ('coil_setpoint_V', 'coil_current_A', 'sensor_V',
                                   'position_m')

@@ -118,7 +118,8 @@ def test_lockstep_with_generator_is_exact_and_matches_the_core(executor, ros_con
     assert ros_harness.spin_until(executor, lambda: probe.samples() >= total, TIMEOUT_S)
     # 7 blocks of up to 128 samples at 10 kHz, states every 10 samples: 13 per block.
     assert ros_harness.spin_until(
-        executor, lambda: len(probe.clock_ns) >= 7 and len(probe.states) >= 85, TIMEOUT_S)
+        executor, lambda: len(probe.clock_ns) >= 7 and len(probe.states) >= 85
+        and len(probe.descriptions) == 4, TIMEOUT_S)   # latched, matched in any order
 
     firsts = [b[0] for b in probe.blocks['measurements']]
     assert firsts == list(range(0, total, 128))
@@ -291,7 +292,8 @@ def test_in_loop_controller_holds_a_100_g_step_over_dds(executor, ros_context):
     # 0.5 s after the step, in simulated time
     for k in range(1, 6):
         pub.publish(block_to_msg(k * block, rate, 1, np.zeros((2, block))))
-    assert ros_harness.spin_until(executor, lambda: probe.samples() >= 6 * block, TIMEOUT_S)
+    assert ros_harness.spin_until(executor, lambda: probe.samples() >= 6 * block
+                                  and len(probe.descriptions) == 4, TIMEOUT_S)
     names = probe.descriptions['measurements'].channel_names
     assert 'coil_current_precise_A' in names and 'force_command_N' in names
     got = np.concatenate([b[2] for b in probe.blocks['measurements']], axis=1)

@@ -123,7 +123,9 @@ def test_in_process_consumer_paced_stream_is_exact_and_contiguous(executor, ros_
     assert total == 833
     # Topics are not ordered with respect to each other: wait for `done` and the samples.
     assert ros_harness.spin_until(
-        executor, lambda: listener.done is True and listener.received() == total, TIMEOUT_S)
+        executor, lambda: listener.done is True and listener.received() == total
+        and listener.description is not None and listener.status is not None
+        and listener.status['state'] == 'done', TIMEOUT_S)
 
     firsts = [b.first_sample_index for b in listener.blocks]
     assert firsts == list(range(0, total, 128))
@@ -143,7 +145,6 @@ def test_in_process_consumer_paced_stream_is_exact_and_contiguous(executor, ros_
     assert d.extra['sections'] == [
         {'name': 'a', 'first_sample_index': 0, 'n_samples': 500},
         {'name': 'b', 'first_sample_index': 500, 'n_samples': 333}]
-    assert listener.status['state'] == 'done'
 
 
 def test_consumer_pacing_holds_back_without_acknowledgements(executor, ros_context):
@@ -222,11 +223,12 @@ def test_separate_process_wall_paced_refuses_bad_parameters(tmp_path, processes,
     assert listener.call(executor, 'start').success
     assert ros_harness.spin_until(
         executor, lambda: listener.done is True and listener.received() == 833, TIMEOUT_S)
+    assert ros_harness.spin_until(      # the latched description is a topic of its own
+        executor, lambda: listener.description.block_size == 200, TIMEOUT_S)
     assert [b.first_sample_index for b in listener.blocks] == list(range(0, 833, 200))
     assert set(listener.kinds[1:]) == {Continuity.CONTIGUOUS}
     np.testing.assert_array_equal(
         np.concatenate([b.samples for b in listener.blocks], axis=1), expected_samples())
-    assert listener.description.block_size == 200
     assert proc.stop() == 0, proc.output()
 
 
