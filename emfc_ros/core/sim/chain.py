@@ -22,8 +22,8 @@ Chain per sample ``n`` (period ``dt``, see ``docs/simulator.md``):
    quantities a user computes from them.
 
 Layout for speed (``docs/simulator.md``, section Performance): the block is worked in chunks of
-``CHUNK`` samples, each in three passes, so that the latency-bound mechanics loop carries no
-other work: (a) the noise of the chunk, the DAC, amplifiers and pan force, (b) the RK4 steps,
+``CHUNK`` samples, each in three passes, so that the mechanics loop (the costliest part) carries
+no other work: (a) the noise of the chunk, the DAC, amplifiers and pan force, (b) the RK4 steps,
 (c) the sensor, ADC and outputs. Passes (a) and (c) hold no inner loops or state-dependent
 branches for the usual polynomial degrees (the characteristics as scalars, the converters
 branch-free with ``np.floor``), so that LLVM can vectorise parts of them; the noise is kept in
