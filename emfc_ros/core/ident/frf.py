@@ -26,13 +26,14 @@ equivalent number of independent averages (:func:`effective_averages`).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional, Tuple, Union
+from typing import Optional, Sequence, Tuple, Union
 
 import numpy as np
 from scipy import signal as sps
 from scipy import special
 
 from emfc_ros.core.ident.errors import IdentificationError
+from emfc_ros.core.records import same_clock_records
 
 ESTIMATORS = ('H1', 'H2', 'Hv')
 WindowSpec = Union[str, Tuple, np.ndarray]
@@ -272,13 +273,31 @@ def as_record(name: str, values: np.ndarray) -> np.ndarray:
     IdentificationError
         If not one-dimensional, empty or not finite.
     """
-    arr = np.asarray(values, dtype=float)
-    if arr.ndim != 1 or arr.size == 0:
-        raise IdentificationError(f'{name} must be a non-empty 1-D array, got shape '
-                                  f'{arr.shape}')
-    if not np.isfinite(arr).all():
-        raise IdentificationError(f'{name} holds NaN or infinite samples')
-    return arr
+    return same_clock_records((name,), (values,), IdentificationError)[0]
+
+
+def as_records(names: Sequence[str], values: Sequence[np.ndarray]) -> Tuple[np.ndarray, ...]:
+    """
+    Check records on one sample clock: each as :func:`as_record`, all of equal length.
+
+    Parameters
+    ----------
+    names : sequence of str
+        Argument names for the messages.
+    values : sequence of array_like
+        The records.
+
+    Returns
+    -------
+    tuple of ndarray
+        The records as float64.
+
+    Raises
+    ------
+    IdentificationError
+        If one is not a finite non-empty 1-D record or the lengths differ.
+    """
+    return same_clock_records(names, values, IdentificationError)
 
 
 def check_rate(sample_rate_Hz: float) -> float:
@@ -460,11 +479,7 @@ def estimate_frf(input: np.ndarray, output: np.ndarray, sample_rate_Hz: float, *
     """
     if estimator not in ESTIMATORS:
         raise IdentificationError(f'estimator must be one of {ESTIMATORS}, got {estimator!r}')
-    u = as_record('input', input)
-    y = as_record('output', output)
-    if u.size != y.size:
-        raise IdentificationError(f'input and output must have equal length, got {u.size} and '
-                                  f'{y.size}')
+    u, y = as_records(('input', 'output'), (input, output))
     spec = cross_spectra(np.vstack((u, y)), sample_rate_Hz, nperseg=nperseg, noverlap=noverlap,
                          window=window, detrend=detrend)
     m = spec.matrix[1:]

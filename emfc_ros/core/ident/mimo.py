@@ -21,7 +21,7 @@ import warnings
 import numpy as np
 
 from emfc_ros.core.ident.errors import IdentificationError
-from emfc_ros.core.ident.frf import (as_record, cross_spectra, FrequencyResponseData,
+from emfc_ros.core.ident.frf import (as_records, cross_spectra, FrequencyResponseData,
                                      WindowSpec)
 
 #: Default largest acceptable condition number of the 2 x 2 input spectral matrix.
@@ -97,12 +97,7 @@ def estimate_two_input_frf(inputs: Sequence[np.ndarray], output: np.ndarray,
         raise IdentificationError(f'inputs must hold exactly two records, got {len(inputs)}')
     if len(input_units) != 2:
         raise IdentificationError('input_units must hold two strings')
-    u1 = as_record('inputs[0]', inputs[0])
-    u2 = as_record('inputs[1]', inputs[1])
-    y = as_record('output', output)
-    if not u1.size == u2.size == y.size:
-        raise IdentificationError(f'inputs and output must have equal length, got {u1.size}, '
-                                  f'{u2.size} and {y.size}')
+    u1, u2, y = as_records(('inputs[0]', 'inputs[1]', 'output'), (inputs[0], inputs[1], output))
     spec = cross_spectra(np.vstack((u1, u2, y)), sample_rate_Hz, nperseg=nperseg,
                          noverlap=noverlap, window=window, detrend=detrend)
     if spec.n_effective <= 2.0:

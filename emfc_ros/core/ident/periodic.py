@@ -21,7 +21,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from emfc_ros.core.ident.errors import IdentificationError
-from emfc_ros.core.ident.frf import as_record, check_rate, FrequencyResponseData
+from emfc_ros.core.ident.frf import as_record, as_records, check_rate, FrequencyResponseData
 
 #: Lines whose mean input amplitude is below this fraction of the largest count as not excited.
 EXCITED_FRACTION = 1.0e-3
@@ -110,11 +110,7 @@ def average_periods(input: np.ndarray, output: np.ndarray, sample_rate_Hz: float
         or a requested line is out of range or not excited.
     """
     fs = check_rate(sample_rate_Hz)
-    u = as_record('input', input)
-    y = as_record('output', output)
-    if u.size != y.size:
-        raise IdentificationError(f'input and output must have equal length, got {u.size} and '
-                                  f'{y.size}')
+    u, y = as_records(('input', 'output'), (input, output))
     U = period_spectra(u, period_samples, transient_periods)
     Y = period_spectra(y, period_samples, transient_periods)
     n_p = U.shape[0]
@@ -185,11 +181,7 @@ def etfe(input: np.ndarray, output: np.ndarray, sample_rate_Hz: float, *,
         If the records differ in length or the input is zero.
     """
     fs = check_rate(sample_rate_Hz)
-    u = as_record('input', input)
-    y = as_record('output', output)
-    if u.size != y.size:
-        raise IdentificationError(f'input and output must have equal length, got {u.size} and '
-                                  f'{y.size}')
+    u, y = as_records(('input', 'output'), (input, output))
     U = np.fft.rfft(u)[1:]
     Y = np.fft.rfft(y)[1:]
     amp = np.abs(U)

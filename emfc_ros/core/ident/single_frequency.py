@@ -25,7 +25,7 @@ import numpy as np
 from scipy import linalg
 
 from emfc_ros.core.ident.errors import IdentificationError
-from emfc_ros.core.ident.frf import as_record, check_rate, FrequencyResponseData
+from emfc_ros.core.ident.frf import as_records, check_rate, FrequencyResponseData
 
 METHODS = ('sine_fit', 'dft')
 
@@ -64,11 +64,7 @@ def response_at(input: np.ndarray, output: np.ndarray, sample_rate_Hz: float,
     if method not in METHODS:
         raise IdentificationError(f'method must be one of {METHODS}, got {method!r}')
     fs = check_rate(sample_rate_Hz)
-    u = as_record('input', input)
-    y = as_record('output', output)
-    if u.size != y.size:
-        raise IdentificationError(f'input and output must have equal length, got {u.size} and '
-                                  f'{y.size}')
+    u, y = as_records(('input', 'output'), (input, output))
     f = np.atleast_1d(np.asarray(frequencies_Hz, dtype=float))
     if f.ndim != 1 or f.size == 0 or not np.isfinite(f).all() or f.min() <= 0.0 or \
             f.max() >= 0.5 * fs:

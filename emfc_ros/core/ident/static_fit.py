@@ -23,7 +23,7 @@ from numpy.polynomial import polynomial as npoly
 from scipy import linalg
 
 from emfc_ros.core.ident.errors import IdentificationError, IllConditionedFitWarning
-from emfc_ros.core.ident.frf import as_record, check_rate
+from emfc_ros.core.ident.frf import as_record, as_records, check_rate
 
 #: Default limit on the condition number of the equilibrated design matrix.
 MAX_CONDITION = 1.0e8
@@ -428,11 +428,7 @@ def fit_polynomial(x: np.ndarray, y: np.ndarray, degree: int, *,
     if isinstance(degree, bool) or int(degree) != degree or degree < 0:
         raise IdentificationError(f'degree must be an integer >= 0, got {degree!r}')
     deg = int(degree)
-    xs = as_record('x', x)
-    ys = as_record('y', y)
-    if xs.size != ys.size:
-        raise IdentificationError(f'x and y must have equal length, got {xs.size} and '
-                                  f'{ys.size}')
+    xs, ys = as_records(('x', 'y'), (x, y))
     lo, hi = float(xs.min()), float(xs.max())
     centre = 0.5 * (lo + hi)
     half = 0.5 * (hi - lo) if hi > lo else 1.0
@@ -482,12 +478,7 @@ def fit_motor_coefficient(current: np.ndarray, position: np.ndarray, force: np.n
     IdentificationError
         If the inputs are invalid.
     """
-    i = as_record('current', current)
-    y = as_record('position', position)
-    f = as_record('force', force)
-    if not i.size == y.size == f.size:
-        raise IdentificationError(f'current, position and force must have equal length, got '
-                                  f'{i.size}, {y.size} and {f.size}')
+    i, y, f = as_records(('current', 'position', 'force'), (current, position, force))
     fit = linear_least_squares(np.column_stack((y * y * i, y * i, i)), f, weights=weights,
                                max_condition=max_condition)
     return MotorCoefficientFit(fit.coefficients, fit.standard_errors, fit.covariance,

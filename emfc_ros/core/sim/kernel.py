@@ -17,6 +17,7 @@ import numpy as np
 from emfc_ros.core.model.load import loaded
 from emfc_ros.core.model.parameters import BalanceParameters, ConverterParameters
 from emfc_ros.core.model.parameters import MechanicalParameters
+from emfc_ros.core.records import same_clock_records
 from emfc_ros.core.sim import rk4
 
 BACKENDS = ('auto', 'numba', 'numpy')
@@ -186,13 +187,8 @@ class PlantKernel:
         BlockOutput
             The signals at the sample instants and the state after the block.
         """
-        uc = np.ascontiguousarray(u_coil_V, dtype=float)
-        ul = np.ascontiguousarray(u_lc_V, dtype=float)
-        if uc.ndim != 1 or uc.shape != ul.shape:
-            raise ValueError(f'setpoints must be 1-D arrays of equal length, got shapes '
-                             f'{uc.shape} and {ul.shape}')
-        if not (np.all(np.isfinite(uc)) and np.all(np.isfinite(ul))):
-            raise ValueError('setpoints must be finite')
+        uc, ul = same_clock_records(('u_coil_V', 'u_lc_V'), (u_coil_V, u_lc_V),
+                                    allow_empty=True)
         out = np.empty((rk4.N_OUT, uc.size))
         self._run(self._x, uc, ul, self.dt_s, self.substeps, self._par, self._amp_coil,
                   self._amp_lc, self._motor, self._sensor, self._lc, out)

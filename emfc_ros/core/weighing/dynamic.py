@@ -65,6 +65,7 @@ from scipy import signal
 
 from emfc_ros.core.model.linear import linearise, LinearModel
 from emfc_ros.core.model.parameters import MechanicalParameters
+from emfc_ros.core.records import same_clock_records
 from emfc_ros.core.weighing import kalman_loop
 from emfc_ros.core.weighing.calibration import WeighingCalibration
 from emfc_ros.core.weighing.errors import WeighingError
@@ -285,13 +286,8 @@ class DynamicWeigher:
         WeighingError
             If the arrays are not 1-D of equal length or hold non-finite values.
         """
-        y = np.ascontiguousarray(position_m, dtype=float)
-        f = np.ascontiguousarray(coil_force_N, dtype=float)
-        if y.ndim != 1 or f.shape != y.shape:
-            raise WeighingError(f'position_m, coil_force_N: need 1-D arrays of equal length, '
-                                f'got shapes {y.shape} and {f.shape}')
-        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(f))):
-            raise WeighingError('position_m, coil_force_N: contain non-finite samples')
+        y, f = same_clock_records(('position_m', 'coil_force_N'), (position_m, coil_force_N),
+                                  WeighingError, allow_empty=True)
         w = np.empty(y.size)
         e = np.empty(y.size)
         self._run(self.transition, self.coil_input, self.output_row, self.gain, self._state,
