@@ -145,17 +145,9 @@ class WeighingCalibration:
 
     def mass_kg(self, force_N):
         """
-        Net mass ``S (F - F0) - tare``, vectorised.
+        Net mass ``S (F - F0) - tare`` [kg] of a compensation force [N], vectorised.
 
-        Parameters
-        ----------
-        force_N : float or array_like
-            Compensation force [N].
-
-        Returns
-        -------
-        float or ndarray
-            Net mass [kg].
+        Parameters and return as :meth:`gross_mass_kg`, with the tare subtracted.
         """
         return self.gross_mass_kg(force_N) - self.tare_kg
 

@@ -87,14 +87,8 @@ def filter_riccati(phi: np.ndarray, c: np.ndarray, q: np.ndarray, r: float) -> n
 
     Parameters
     ----------
-    phi : ndarray, shape (n, n)
-        Transition matrix.
-    c : ndarray, shape (n,)
-        Output row.
-    q : ndarray, shape (n, n)
-        Process noise covariance per step (positive semi-definite).
-    r : float
-        Measurement noise variance, > 0.
+    phi, c, q, r
+        As :func:`riccati_step` (``q`` positive semi-definite, ``r > 0``).
 
     Returns
     -------
