@@ -96,11 +96,15 @@ SMALL_ANGLE_SQ = 0.5 * SMALL_ANGLE_RAD * SMALL_ANGLE_RAD
 CHUNK = 256
 
 
-#: How numba compiles the chain and its helpers. fastmath: FMA contraction and reassociation
-#: (about 20 % faster), still deterministic. error_model 'numpy': a float division by zero
-#: gives inf or nan instead of raising ZeroDivisionError, so divisions carry no branch and
-#: loops with one vectorise (the parameters are validated: no divisor is zero).
-JIT_OPTIONS = {'fastmath': True, 'error_model': 'numpy'}
+#: How numba compiles the chain and its helpers. fastmath flags: FMA contraction and
+#: reassociation (about 20 % faster), still deterministic; not 'arcp' (reciprocal instead of
+#: division): LLVM applies it where a basic block divides by the same value more than once, so
+#: a vectorised loop body and its scalar remainder would round differently and a sample's
+#: outputs would depend on where the block boundaries fall. error_model 'numpy': a float
+#: division by zero gives inf or nan instead of raising ZeroDivisionError, so divisions carry
+#: no branch and loops with one vectorise (the parameters are validated: no divisor is zero).
+JIT_OPTIONS = {'fastmath': {'nnan', 'ninf', 'nsz', 'contract', 'afn', 'reassoc'},
+               'error_model': 'numpy'}
 
 try:    # compiled once each and inlined by LLVM into the chain (numba), plain Python otherwise
     from numba.extending import register_jitable as _register_jitable
@@ -233,11 +237,14 @@ def normals(counter0, m, zz, p_tmp, bits, tails, noise_key):
     for k in range(3 * m):
         bits[k] = splitmix(counter0 + np.uint64(k), noise_key) >> SHIFT11
     for r in range(3):
+        p_r = p_tmp[r, :m]
         for j in range(m):
-            p_tmp[r, j] = (float(np.int64(bits[3 * j + r])) + 0.5) * INV_2_POW_53
+            p_r[j] = (float(np.int64(bits[3 * j + r])) + 0.5) * INV_2_POW_53
     for r in range(3):
+        p_r = p_tmp[r, :m]
+        z_r = zz[r, :m]
         for j in range(m):
-            zz[r, j] = normal_central(p_tmp[r, j])
+            z_r[j] = normal_central(p_r[j])
     width = zz.shape[1]
     n_tails = 0
     for r in range(3):
@@ -302,9 +309,13 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
         False, with nothing simulated or changed, if ``u`` holds a value that is not finite.
     """
     bits = u.view(np.int64)
-    for n in range(u.shape[1]):
-        if (bits[0, n] & EXP_MASK) == EXP_MASK or (bits[1, n] & EXP_MASK) == EXP_MASK:
-            return False
+    bits_c = bits[0]
+    bits_l = bits[1]
+    bad = 0
+    for n in range(u.shape[1]):    # no early exit: the loop vectorises
+        bad |= (((bits_c[n] & EXP_MASK) == EXP_MASK) | ((bits_l[n] & EXP_MASK) == EXP_MASK))
+    if bad:
+        return False
     l1 = par[rk4.L1]
     l2 = par[rk4.L2]
     l3 = par[rk4.L3]
@@ -449,6 +460,8 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
     v_c = np.empty(chunk + 1)
     v_l = np.empty(chunk + 1)
     y_true = np.empty(chunk)
+    s_code = np.empty(chunk)
+    s_pos = np.empty(chunk)
     zz = np.zeros((3, chunk))
     p_tmp = np.empty((3, chunk))
     bits = np.empty(3 * chunk, np.uint64)
@@ -467,21 +480,31 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
             normals(np.uint64(first + start) * THREE + ONE, m, zz, p_tmp, bits, tails,
                     noise_key)
         # 1. DAC, amplifiers, pan force (independent of the state)
+        # 1-D views: loops over them vectorise (2-D indexing with an offset does not)
+        u_c = u[0, start:start + m]
+        u_l = u[1, start:start + m]
+        z_y = zz[0, :m]
+        z_c = zz[1, :m]
+        z_l = zz[2, :m]
         if short:
+            d_c = v_c[1:m + 1]
+            d_l = v_l[1:m + 1]
+            if quantise:
+                for j in range(m):
+                    d_c[j] = code_of(u_c[j], dac_lsb, dac_lo, dac_hi) * dac_lsb
+                    d_l[j] = code_of(u_l[j], dac_lsb, dac_lo, dac_hi) * dac_lsb
+            else:
+                for j in range(m):
+                    d_c[j] = min(max(u_c[j], -dac_range), dac_range)
+                    d_l[j] = min(max(u_l[j], -dac_range), dac_range)
+            h_c = v_c[hold_off:hold_off + m]
+            h_l = v_l[hold_off:hold_off + m]
             for j in range(m):
-                n = start + j
-                if quantise:
-                    v_c[j + 1] = code_of(u[0, n], dac_lsb, dac_lo, dac_hi) * dac_lsb
-                    v_l[j + 1] = code_of(u[1, n], dac_lsb, dac_lo, dac_hi) * dac_lsb
-                else:
-                    v_c[j + 1] = min(max(u[0, n], -dac_range), dac_range)
-                    v_l[j + 1] = min(max(u[1, n], -dac_range), dac_range)
-            for j in range(m):
-                vc = v_c[j + hold_off]
-                vl = v_l[j + hold_off]
-                ic = min(max(ac0 + vc * (ac1 + vc * ac2) + zz[1, j] * noise_ic, -i_coil_max),
+                vc = h_c[j]
+                vl = h_l[j]
+                ic = min(max(ac0 + vc * (ac1 + vc * ac2) + z_c[j] * noise_ic, -i_coil_max),
                          i_coil_max)
-                il = min(max(al0 + vl * (al1 + vl * al2) + zz[2, j] * noise_ilc, -i_lc_max),
+                il = min(max(al0 + vl * (al1 + vl * al2) + z_l[j] * noise_ilc, -i_lc_max),
                          i_lc_max)
                 i_c[j] = ic
                 i_l[j] = il
@@ -542,24 +565,34 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
         # 3. sensor, ADC, monitors and the user's quantities at t_n
         if short and quantise:
             for j in range(m):
-                n = start + j
-                y_meas = min(max(y_true[j] + zz[0, j] * noise_y, -sensor_range), sensor_range)
-                code = code_of(se0 + y_meas * (se1 + y_meas * (se2 + y_meas * (
+                y_meas = min(max(y_true[j] + z_y[j] * noise_y, -sensor_range), sensor_range)
+                s_code[j] = code_of(se0 + y_meas * (se1 + y_meas * (se2 + y_meas * (
                     se3 + y_meas * (se4 + y_meas * se5)))), adc_lsb, adc_lo, adc_hi)
-                pos = sensor_table[int(code - adc_lo)]
+            for j in range(m):
+                s_pos[j] = sensor_table[int(s_code[j] - adc_lo)]
+            o_uc = out[OUT_U_COIL, start:start + m]
+            o_ul = out[OUT_U_LC, start:start + m]
+            o_ic = out[OUT_I_COIL, start:start + m]
+            o_il = out[OUT_I_LC, start:start + m]
+            o_s = out[OUT_SENSOR, start:start + m]
+            o_p = out[OUT_POS, start:start + m]
+            o_fc = out[OUT_F_COIL, start:start + m]
+            o_fl = out[OUT_F_LC, start:start + m]
+            for j in range(m):
+                pos = s_pos[j]
                 i_coil_meas = code_of(monitor * i_c[j], adc_lsb, adc_lo, adc_hi) * adc_lsb \
                     / monitor
                 i_lc_meas = code_of(monitor * i_l[j], adc_lsb, adc_lo, adc_hi) * adc_lsb \
                     / monitor
                 pm = pos * MM_PER_M
-                out[OUT_U_COIL, n] = v_c[j + 1]
-                out[OUT_U_LC, n] = v_l[j + 1]
-                out[OUT_I_COIL, n] = i_coil_meas
-                out[OUT_I_LC, n] = i_lc_meas
-                out[OUT_SENSOR, n] = code * adc_lsb
-                out[OUT_POS, n] = pos
-                out[OUT_F_COIL, n] = (mo0 + pm * (mo1 + pm * mo2)) * i_coil_meas
-                out[OUT_F_LC, n] = lc0 + i_lc_meas * (lc1 + i_lc_meas * lc2)
+                o_uc[j] = d_c[j]
+                o_ul[j] = d_l[j]
+                o_ic[j] = i_coil_meas
+                o_il[j] = i_lc_meas
+                o_s[j] = s_code[j] * adc_lsb
+                o_p[j] = pos
+                o_fc[j] = (mo0 + pm * (mo1 + pm * mo2)) * i_coil_meas
+                o_fl[j] = lc0 + i_lc_meas * (lc1 + i_lc_meas * lc2)
         else:
             for j in range(m):
                 n = start + j
