@@ -45,11 +45,21 @@ import numpy as np
 
 from emfc_ros.core.sim import rk4
 
-# Indices into the packed parameter vector: the mechanics of rk4 (0..20), then these.
+# Indices into the packed parameter vector: the mechanics of rk4 (0..20), then these, the
+# switches (1.0 for on) and the number of RK4 steps per sample, then from COEFFS the lengths of
+# the five characteristics' coefficient lists (CHARACTERISTICS order); the lists follow from
+# N_PAR on, one after the other (:func:`characteristic`). One vector keeps the kernel's
+# argument count low: numba's dispatcher costs about 0.15 us per argument and call.
 (DAC_LSB, DAC_LO, DAC_HI, DAC_RANGE, ADC_LSB, ADC_LO, ADC_HI, ADC_RANGE, SENSOR_RANGE,
- STOP_POS, STOP_K, STOP_D, MONITOR, NOISE_Y, NOISE_IC, NOISE_ILC, DT) = range(
-    rk4.N_PAR, rk4.N_PAR + 17)
-N_PAR = rk4.N_PAR + 17
+ STOP_POS, STOP_K, STOP_D, MONITOR, NOISE_Y, NOISE_IC, NOISE_ILC, DT, USE_NOISE, QUANTISE, FOH,
+ SUBSTEPS) = range(rk4.N_PAR, rk4.N_PAR + 21)
+#: The characteristics packed from COEFFS on (ascending powers, ``docs/model.md``): coil and
+#: load-changer amplifier [A/V**k], motor [N/(A mm**k)], sensor [V/m**k], load changer
+#: [N/A**k].
+CHARACTERISTICS = ('amp_coil', 'amp_lc', 'motor', 'sensor', 'load_changer')
+AMP_COIL, AMP_LC, MOTOR, SENSOR, LOAD_CHANGER = range(5)
+COEFFS = rk4.N_PAR + 21
+N_PAR = COEFFS + len(CHARACTERISTICS)
 
 # Rows of the output array (the reference rows only when the array has them).
 (OUT_U_COIL, OUT_U_LC, OUT_I_COIL, OUT_I_LC, OUT_SENSOR, OUT_POS, OUT_F_COIL, OUT_F_LC,
@@ -117,6 +127,15 @@ except ImportError:     # pragma: no cover - numba is optional
 
 
 # Module-level helpers, compiled once each (see the module docstring, Compilation time).
+
+
+@_jitable
+def characteristic(par, k):
+    """Return the coefficients of characteristic ``k`` (AMP_COIL .. LOAD_CHANGER) in ``par``."""
+    start = N_PAR
+    for j in range(k):
+        start += int(par[COEFFS + j])
+    return par[start:start + int(par[COEFFS + k])]
 
 
 @_jitable
@@ -271,8 +290,7 @@ def code_of(v, lsb, lo, hi):
     return min(max(np.floor(min(max(v / lsb, lo - 1.0), hi + 1.0) + 0.5), lo), hi)
 
 
-def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps, par,
-                amp_coil, amp_lc, motor, sensor, load_changer, sensor_table, out):
+def chain_block(x, prev, u, first, noise_key, par, sensor_table, out):
     """
     Run one block of samples through the chain in place.
 
@@ -289,14 +307,11 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
         Sample index of the block's first sample (the noise counter).
     noise_key : numpy.uint64
         Key of the noise streams (:func:`emfc_ros.core.sim.noise.noise_key`).
-    use_noise, quantise, foh : bool
-        Add noise; quantise the converters (else only clamp them); first-order hold.
-    substeps : int
-        RK4 steps per sample.
-    par : ndarray, shape (N_PAR,)
-        Packed mechanics, converters and noise levels (indices above).
-    amp_coil, amp_lc, motor, sensor, load_changer : ndarray
-        Ascending-power coefficients of the characteristics (``docs/model.md``).
+    par : ndarray
+        Packed mechanics, converters, noise levels, switches (``USE_NOISE``: add noise,
+        ``QUANTISE``: quantise the converters, else only clamp them, ``FOH``: first-order
+        hold), ``SUBSTEPS`` (RK4 steps per sample) and the characteristics (indices above,
+        :func:`characteristic`).
     sensor_table : ndarray, shape (2**adc_bits,)
         Inverse sensor characteristic at every ADC code ``c`` (entry ``c - ADC_LO``), used
         when ``quantise``; without quantisation the inverse is solved by Newton's method.
@@ -360,6 +375,15 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
     noise_ic = par[NOISE_IC]
     noise_ilc = par[NOISE_ILC]
     dt = par[DT]
+    use_noise = par[USE_NOISE] != 0.0
+    quantise = par[QUANTISE] != 0.0
+    foh = par[FOH] != 0.0
+    substeps = int(par[SUBSTEPS])
+    amp_coil = characteristic(par, AMP_COIL)
+    amp_lc = characteristic(par, AMP_LC)
+    motor = characteristic(par, MOTOR)
+    sensor = characteristic(par, SENSOR)
+    load_changer = characteristic(par, LOAD_CHANGER)
     h = dt / substeps
     reference = out.shape[0] > N_MEASURED
     # k(y) in powers of y in metres; up to a quadratic in scalars (zero padded: the same
@@ -411,23 +435,31 @@ def chain_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps
         b2 = w2 + hh * f1
         q1b = q1 + hh * w1
         q2b = q2 + hh * w2
+        bound = max(q1 * q1 + q2 * q2, q1b * q1b + q2b * q2b)
         e2, f2, _ = accel(q1b, q2b, a2, b2, icm, panm, taylor)
+        # the RK4 sums, accumulated as the stages come (fewer values live at once)
+        sq1 = w1 + 2.0 * a2
+        sq2 = w2 + 2.0 * b2
+        sw1 = e1 + 2.0 * e2
+        sw2 = f1 + 2.0 * f2
         a3 = w1 + hh * e2
         b3 = w2 + hh * f2
         q1c = q1 + hh * a2
         q2c = q2 + hh * b2
+        bound = max(bound, q1c * q1c + q2c * q2c)
         e3, f3, _ = accel(q1c, q2c, a3, b3, icm, panm, taylor)
+        sq1 = sq1 + 2.0 * a3
+        sq2 = sq2 + 2.0 * b3
+        sw1 = sw1 + 2.0 * e3
+        sw2 = sw2 + 2.0 * f3
         a4 = w1 + h * e3
         b4 = w2 + h * f3
         q1d = q1 + h * a3
         q2d = q2 + h * b3
+        bound = max(bound, q1d * q1d + q2d * q2d)
         e4, f4, _ = accel(q1d, q2d, a4, b4, ic1, pan1, taylor)
-        bound = max(max(q1 * q1 + q2 * q2, q1b * q1b + q2b * q2b),
-                    max(q1c * q1c + q2c * q2c, q1d * q1d + q2d * q2d))
-        return (q1 + h6 * (w1 + 2.0 * a2 + 2.0 * a3 + a4),
-                q2 + h6 * (w2 + 2.0 * b2 + 2.0 * b3 + b4),
-                w1 + h6 * (e1 + 2.0 * e2 + 2.0 * e3 + e4),
-                w2 + h6 * (f1 + 2.0 * f2 + 2.0 * f3 + f4), y0, bound)
+        return (q1 + h6 * (sq1 + a4), q2 + h6 * (sq2 + b4), w1 + h6 * (sw1 + e4),
+                w2 + h6 * (sw2 + f4), y0, bound)
 
     # the characteristics as scalars (zero padded: the same operations as Horner's scheme on
     # the shorter polynomial), so that passes 1 and 3 carry no inner loops

@@ -46,16 +46,14 @@ MM_PER_M = 1.0e3
 _LOOP_JIT: Optional[Callable] = None
 
 
-def loop_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps, par,
-               amp_coil, amp_lc, motor, sensor, load_changer, sensor_table, out, coef, cstate,
-               ring_V, ring_N, ratio, delay, setpoint_m, run_chain):
+def loop_block(x, prev, u, first, noise_key, par, sensor_table, out, coef, cstate, ring_V,
+               ring_N, ratio, delay, setpoint_m, run_chain):
     """
     Simulate a block in closed loop, one simulator sample at a time.
 
     Parameters
     ----------
-    x, prev, first, noise_key, use_noise, quantise, foh, substeps, par, amp_coil, amp_lc,
-    motor, sensor, load_changer, sensor_table
+    x, prev, first, noise_key, par, sensor_table
         As :func:`emfc_ros.core.sim.chain.chain_block`.
     u : ndarray, shape (2, n)
         Excitation [V]: added to the controller's coil setpoint; the load-changer setpoint.
@@ -91,6 +89,8 @@ def loop_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps,
     u_run = np.empty((2, ratio))
     out_run = np.empty((chain.N_OUT, ratio))
     i_max = par[chain.rk4.I_COIL_MAX]
+    amp_coil = chain.characteristic(par, chain.AMP_COIL)
+    motor = chain.characteristic(par, chain.MOTOR)
     c0 = amp_coil[0]
     c1 = amp_coil[1]
     j = 0
@@ -107,8 +107,7 @@ def loop_block(x, prev, u, first, noise_key, use_noise, quantise, foh, substeps,
             slot = (idx0 + k) % size
             u1[0, k] = ring_V[slot] + u[0, j + k]
             u1[1, k] = u[1, j + k]
-        run_chain(x, prev, u1, idx0, noise_key, use_noise, quantise, foh, substeps, par,
-                  amp_coil, amp_lc, motor, sensor, load_changer, sensor_table, out1)
+        run_chain(x, prev, u1, idx0, noise_key, par, sensor_table, out1)
         for k in range(length):
             for r in range(chain.N_OUT):
                 out[r, j + k] = out1[r, k]
@@ -338,9 +337,8 @@ class ClosedLoopSimulator:
         n = u.shape[1]
         full = np.empty((chain.N_OUT + 2, n))
         first = sim.sample_index
-        args = (sim._x, sim._prev, u, first, sim._noise_key, bool(sim.noise),
-                bool(sim.quantisation), sim.hold == 'foh', sim.substeps, sim._par,
-                *sim._coeffs, full, self._coef, self._cstate, self._ring_V, self._ring_N,
+        args = (sim._x, sim._prev, u, first, sim._noise_key, sim._par, sim._table, full,
+                self._coef, self._cstate, self._ring_V, self._ring_N,
                 self.ratio, self.delay_sim_samples, float(self.config.position_setpoint_m),
                 self._chain)
         if sim.backend == 'numba':

@@ -90,9 +90,11 @@ def min_substeps(params: BalanceParameters, sample_rate_Hz: float) -> int:
 
 
 def pack_parameters(params: BalanceParameters, load_mass_kg: float,
-                    load_changer_coupled: bool, sample_rate_Hz: float) -> np.ndarray:
+                    load_changer_coupled: bool, sample_rate_Hz: float, *, noise: bool = True,
+                    quantisation: bool = True, hold: str = 'zoh',
+                    substeps: int = 1) -> np.ndarray:
     """
-    Pack mechanics, converters and noise levels into the chain's parameter vector.
+    Pack mechanics, converters, noise levels, switches and characteristics for the chain.
 
     Parameters
     ----------
@@ -104,14 +106,24 @@ def pack_parameters(params: BalanceParameters, load_mass_kg: float,
         Whether the load changer's moving mass rides on the pan.
     sample_rate_Hz : float
         Sample rate [Hz].
+    noise, quantisation, hold, substeps
+        As :class:`Simulator`'s.
 
     Returns
     -------
-    ndarray, shape (chain.N_PAR,)
-        The vector, indexed by the constants of :mod:`emfc_ros.core.sim.chain`.
+    ndarray
+        The vector, indexed by the constants of :mod:`emfc_ros.core.sim.chain`, with the
+        characteristics' coefficients from ``chain.N_PAR`` on.
     """
     conv = params.converters
-    par = np.zeros(chain.N_PAR)
+    lists = [np.asarray(c, dtype=float).reshape(-1) for c in (
+        params.coil_amplifier.coeffs_A_per_V_pow,
+        params.load_changer_amplifier.coeffs_A_per_V_pow,
+        params.motor.coeffs_N_per_A_per_mm_pow, params.sensor.coeffs_V_per_m_pow,
+        params.load_changer.coeffs_N_per_A_pow)]
+    par = np.zeros(chain.N_PAR + sum(len(c) for c in lists))
+    par[chain.COEFFS:chain.N_PAR] = [len(c) for c in lists]
+    par[chain.N_PAR:] = np.concatenate(lists)
     par[:chain.rk4.N_PAR] = pack_mechanics(
         loaded(params.mechanics, load_mass_kg, load_changer_coupled), conv)
     par[chain.DAC_LSB] = lsb_V(conv.dac_bits, conv.dac_range_V)
@@ -131,6 +143,10 @@ def pack_parameters(params: BalanceParameters, load_mass_kg: float,
     par[chain.NOISE_IC] = conv.coil_current_noise_A_rms
     par[chain.NOISE_ILC] = conv.load_changer_current_noise_A_rms
     par[chain.DT] = 1.0 / float(sample_rate_Hz)
+    par[chain.USE_NOISE] = float(bool(noise))
+    par[chain.QUANTISE] = float(bool(quantisation))
+    par[chain.FOH] = float(hold == 'foh')
+    par[chain.SUBSTEPS] = int(substeps)
     return par
 
 
@@ -200,7 +216,7 @@ class Simulator:
     mechanics : MechanicalParameters
         The loaded mechanics of the current load.
     noise, quantisation, hold
-        As the parameters; read at every block, so they may be changed between blocks.
+        As the parameters; they may be changed between blocks.
     """
 
     def __init__(self, params: BalanceParameters, sample_rate_Hz: float, seed: int = 0, *,
@@ -234,17 +250,13 @@ class Simulator:
                              f'resolve the fastest mode (the mechanical stop contact); use '
                              f'substeps >= {needed}')
         self.substeps = int(substeps)
-        self.hold = hold
-        self.noise = bool(noise)
-        self.quantisation = bool(quantisation)
+        self._hold = hold
+        self._noise = bool(noise)
+        self._quantisation = bool(quantisation)
         self.reference_channels = bool(reference_channels)
         self.backend = backend
         self._run = _jitted() if backend == 'numba' else chain.chain_block
-        self._coeffs = tuple(np.array(c, dtype=float) for c in (
-            params.coil_amplifier.coeffs_A_per_V_pow,
-            params.load_changer_amplifier.coeffs_A_per_V_pow,
-            params.motor.coeffs_N_per_A_per_mm_pow, params.sensor.coeffs_V_per_m_pow,
-            params.load_changer.coeffs_N_per_A_pow)) + (sensor_table(params),)
+        self._table = sensor_table(params)
         self.channel_names = channel_names(self.reference_channels)
         self.channel_units = channel_units(self.reference_channels)
         self._initial_load = (float(load_mass_kg), bool(load_changer_coupled))
@@ -265,6 +277,38 @@ class Simulator:
         self.reset()
         # compile the kernel (or load it from numba's cache) now, not on the first block
         self.step_block(np.zeros((2, 0)))
+
+    @property
+    def noise(self) -> bool:
+        """Whether sensor and amplifier current noise is added."""
+        return self._noise
+
+    @noise.setter
+    def noise(self, on: bool) -> None:
+        self._noise = bool(on)
+        self._par[chain.USE_NOISE] = float(self._noise)
+
+    @property
+    def quantisation(self) -> bool:
+        """Whether DAC and ADC are quantised (saturation applies either way)."""
+        return self._quantisation
+
+    @quantisation.setter
+    def quantisation(self, on: bool) -> None:
+        self._quantisation = bool(on)
+        self._par[chain.QUANTISE] = float(self._quantisation)
+
+    @property
+    def hold(self) -> str:
+        """The hold of the DAC values, ``'zoh'`` or ``'foh'``."""
+        return self._hold
+
+    @hold.setter
+    def hold(self, hold: str) -> None:
+        if hold not in HOLDS:
+            raise ValueError(f'hold must be one of {HOLDS}, got {hold!r}')
+        self._hold = hold
+        self._par[chain.FOH] = float(hold == 'foh')
 
     def _dac(self, v: float) -> float:
         conv = self.params.converters
@@ -322,7 +366,9 @@ class Simulator:
             If the mass is negative or not finite.
         """
         self._par = pack_parameters(self.params, load_mass_kg, load_changer_coupled,
-                                    self.sample_rate_Hz)
+                                    self.sample_rate_Hz, noise=self._noise,
+                                    quantisation=self._quantisation, hold=self._hold,
+                                    substeps=self.substeps)
         self.load_mass_kg = float(load_mass_kg)
         self.load_changer_coupled = bool(load_changer_coupled)
         self.mechanics = loaded(self.params.mechanics, self.load_mass_kg,
@@ -359,22 +405,17 @@ class Simulator:
         if u.ndim != 2 or u.shape[0] != 2:
             raise ValueError(f'setpoints must have shape (2, n) (coil, load_changer), got '
                              f'shape {u.shape}')
-        if self.hold not in HOLDS:
-            raise ValueError(f'hold must be one of {HOLDS}, got {self.hold!r}')
         n = u.shape[1]
         out = np.empty((len(self.channel_names), n))
         # the kernel refuses non-finite setpoints before it changes anything (cheaper than a
         # numpy check for small blocks)
         if self.backend == 'numba':
-            ok = self._run(self._x, self._prev, u, self._index, self._noise_key,
-                           bool(self.noise), bool(self.quantisation), self.hold == 'foh',
-                           self.substeps, self._par, *self._coeffs, out)
+            ok = self._run(self._x, self._prev, u, self._index, self._noise_key, self._par,
+                           self._table, out)
         else:   # plain Python floats index faster when interpreted
-            par, coeffs = self._par.tolist(), tuple(c.tolist() for c in self._coeffs)
             with np.errstate(over='ignore'):   # the interpreted noise hash wraps around 2**64
                 ok = self._run(self._x, self._prev, u, self._index, self._noise_key,
-                               bool(self.noise), bool(self.quantisation), self.hold == 'foh',
-                               self.substeps, par, *coeffs, out)
+                               self._par.tolist(), self._table, out)
         if not ok:
             raise ValueError('setpoints must be finite')
         self._index += n
