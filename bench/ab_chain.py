@@ -11,7 +11,8 @@ benchmark runs cannot tell them apart. This compiles both versions of
         [--block 1000] [--samples 200000] [--rounds 3] [--no-noise]
 
 It prints both rates, their ratio and the largest difference of the outputs (0 for a
-bit-identical change).
+bit-identical change). Both versions need the working tree's ``chain_block`` signature; to
+compare across a change of it, use ``bench/ab_package.py`` (whole packages).
 """
 
 from __future__ import annotations

@@ -27,7 +27,7 @@ from pathlib import Path
 import platform
 import sys
 import time
-from typing import Callable, List
+from typing import Callable, List, Optional, Tuple
 
 import numpy as np
 import scipy
@@ -53,6 +53,21 @@ def best_rate(run: Callable[[], int], repeats: int) -> float:
         n = run()
         best = max(best, n / (time.perf_counter() - start))
     return best
+
+
+def cpu_ticks() -> Optional[Tuple[int, int]]:
+    """
+    Steal and total CPU ticks of the machine from ``/proc/stat`` (None where there is none).
+
+    Steal is time the hypervisor gave this VM's virtual CPUs to someone else: a slow spell
+    with steal is the host's, not the code's.
+    """
+    try:
+        with open('/proc/stat', encoding='ascii') as stream:
+            fields = [int(v) for v in stream.readline().split()[1:]]
+    except (OSError, ValueError):
+        return None
+    return (fields[7] if len(fields) > 7 else 0), sum(fields)
 
 
 def excitation(params: BalanceParameters, n: int) -> np.ndarray:
@@ -162,9 +177,16 @@ def main(argv: List[str] = None) -> int:
         ]
     # round robin over the repeats, so that a busy spell of the machine hits every row alike
     best = [0.0] * len(fast)
+    ticks0 = cpu_ticks()
     for _ in range(args.repeats):
         for i, (_, run, _) in enumerate(fast):
             best[i] = max(best[i], best_rate(run, 1))
+    ticks1 = cpu_ticks()
+    steal = None
+    if ticks0 and ticks1 and ticks1[1] > ticks0[1]:
+        steal = (ticks1[0] - ticks0[0]) / (ticks1[1] - ticks0[1])
+        print(f'CPU time stolen by the hypervisor during the compiled rows: {100 * steal:.1f} % '
+              f'of the CPU time of all CPUs (/proc/stat)')
     for (name, _, note), rate in zip(fast, best):
         add(name, rate, n_fast, note)
     n_slow = 2000
@@ -188,7 +210,8 @@ def main(argv: List[str] = None) -> int:
     with open(args.json, 'w', encoding='utf-8') as stream:
         json.dump({'sample_rate_Hz': FS_HZ, 'block_samples': BLOCK,
                    'machine': platform.machine(), 'python': platform.python_version(),
-                   'numpy': np.__version__, 'scipy': scipy.__version__, 'rows': rows}, stream,
+                   'numpy': np.__version__, 'scipy': scipy.__version__,
+                   'steal_fraction': steal, 'rows': rows}, stream,
                   indent=2)
         stream.write('\n')
     print(f'wrote {args.json}')
