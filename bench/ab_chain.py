@@ -21,18 +21,15 @@ import argparse
 import importlib.util
 from pathlib import Path
 import sys
-import time
 from typing import List
 
-import numpy as np
+from ab_timing import alternate, excitation, FS_HZ
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))   # the working tree, not an installed copy
 
 from emfc_ros.core.model import BalanceParameters  # noqa: E402
 from emfc_ros.core.sim import numba_available, Simulator  # noqa: E402
-
-FS_HZ = 20000.0
 
 
 def load_other(path: Path):
@@ -61,34 +58,8 @@ def main(argv: List[str] = None) -> int:
     this = Simulator(params, FS_HZ, seed=1, **options)
     other = Simulator(params, FS_HZ, seed=1, **options)
     other._run = load_other(args.other)
-    n = args.samples
-    u = np.tile(this.hold_setpoints_V[:, None], (1, n))
-    u[0] += 0.002 * np.sin(np.arange(n) * 0.01)
-    u[1, n // 2:] += 0.1
-    for sim in (this, other):     # compile (or load) both before timing
-        sim.step_block(u[:, :10])
-        sim.reset()
-    t_this = t_other = 0.0
-    diff = 0.0
-    count = 0
-    for _ in range(args.rounds):
-        for k, start in enumerate(range(0, n - args.block + 1, args.block)):
-            block = u[:, start:start + args.block]
-            pair = [(this, 0), (other, 1)] if k % 2 else [(other, 1), (this, 0)]
-            outs = [None, None]
-            for sim, slot in pair:
-                t0 = time.perf_counter()
-                outs[slot] = sim.step_block(block)
-                elapsed = time.perf_counter() - t0
-                if slot == 0:
-                    t_this += elapsed
-                else:
-                    t_other += elapsed
-            diff = max(diff, float(np.abs(outs[0] - outs[1]).max()))
-            count += args.block
-    print(f'working tree {count / t_this / 1e6:8.3f} M/s   other {count / t_other / 1e6:8.3f} '
-          f'M/s   working tree / other {t_other / t_this:6.3f}   largest output difference '
-          f'{diff:.3g}   ({count} samples each, blocks of {args.block})')
+    print(alternate(this, other, excitation(this.hold_setpoints_V, args.samples), args.block,
+                    args.rounds))
     return 0
 
 

@@ -24,18 +24,15 @@ import re
 import shutil
 import sys
 import tempfile
-import time
 from typing import List
 
-import numpy as np
+from ab_timing import alternate, excitation, FS_HZ
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))   # the working tree, not an installed copy
 
 from emfc_ros.core.model import BalanceParameters  # noqa: E402
 from emfc_ros.core.sim import numba_available, Simulator  # noqa: E402
-
-FS_HZ = 20000.0
 
 
 def import_other(checkout: Path, workdir: Path):
@@ -70,30 +67,8 @@ def main(argv: List[str] = None) -> int:
         this = Simulator(BalanceParameters(), FS_HZ, seed=1, hold=args.hold)
         other = old.core.sim.Simulator(old.core.model.BalanceParameters(), FS_HZ, seed=1,
                                        hold=args.hold)
-        n = args.samples
-        u = np.tile(this.hold_setpoints_V[:, None], (1, n))
-        u[0] += 0.002 * np.sin(np.arange(n) * 0.01)
-        u[1, n // 2:] += 0.1
-        elapsed = [0.0, 0.0]
-        diff = 0.0
-        count = 0
-        for _ in range(args.rounds):
-            this.reset()
-            other.reset()
-            for k, start in enumerate(range(0, n - args.block + 1, args.block)):
-                block = u[:, start:start + args.block]
-                pair = [(this, 0), (other, 1)] if k % 2 else [(other, 1), (this, 0)]
-                outs = [None, None]
-                for sim, slot in pair:
-                    t0 = time.perf_counter()
-                    outs[slot] = sim.step_block(block)
-                    elapsed[slot] += time.perf_counter() - t0
-                diff = max(diff, float(np.abs(outs[0] - outs[1]).max()))
-                count += args.block
-    print(f'working tree {count / elapsed[0] / 1e6:8.3f} M/s   other '
-          f'{count / elapsed[1] / 1e6:8.3f} M/s   working tree / other '
-          f'{elapsed[1] / elapsed[0]:6.3f}   largest output difference {diff:.3g}   '
-          f'({count} samples each, blocks of {args.block}, {args.hold})')
+        print(alternate(this, other, excitation(this.hold_setpoints_V, args.samples),
+                        args.block, args.rounds), args.hold)
     return 0
 
 
