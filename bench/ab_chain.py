@@ -23,7 +23,7 @@ from pathlib import Path
 import sys
 from typing import List
 
-from ab_timing import alternate, excitation, FS_HZ
+from ab_timing import add_timing_arguments, alternate, excitation, FS_HZ
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))   # the working tree, not an installed copy
@@ -44,9 +44,7 @@ def load_other(path: Path):
 def main(argv: List[str] = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('other', type=Path, help='the other version of chain.py')
-    parser.add_argument('--block', type=int, default=1000, help='samples per block')
-    parser.add_argument('--samples', type=int, default=200000, help='samples per round')
-    parser.add_argument('--rounds', type=int, default=3)
+    add_timing_arguments(parser)
     parser.add_argument('--no-noise', action='store_true',
                         help='without noise and quantisation')
     args = parser.parse_args(argv)

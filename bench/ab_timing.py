@@ -7,11 +7,19 @@ spell of a shared VM hits both alike.
 
 from __future__ import annotations
 
+import argparse
 import time
 
 import numpy as np
 
 FS_HZ = 20000.0
+
+
+def add_timing_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the options of :func:`alternate`: ``--block``, ``--samples``, ``--rounds``."""
+    parser.add_argument('--block', type=int, default=1000, help='samples per block')
+    parser.add_argument('--samples', type=int, default=200000, help='samples per round')
+    parser.add_argument('--rounds', type=int, default=3)
 
 
 def excitation(hold_V: np.ndarray, n: int) -> np.ndarray:
