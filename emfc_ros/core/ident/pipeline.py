@@ -192,6 +192,10 @@ class IdentificationResult:
         Step (d).
     warnings : list of str
         What the user should know (skipped steps, poor fits, failed residual tests).
+    failures : list of str
+        Why the identification did not reach a usable model (empty when it did): a failed
+        step, a section fit below its threshold, a stalled optimiser, a parameter at a bound.
+        :attr:`success` is False when any is listed.
     timings_s : dict of str to float
         Wall time per step [s].
     """
@@ -204,7 +208,13 @@ class IdentificationResult:
     static: Optional[StaticResult] = None
     greybox: Optional[BalanceGreyboxResult] = None
     warnings: List[str] = field(default_factory=list)
+    failures: List[str] = field(default_factory=list)
     timings_s: Dict[str, float] = field(default_factory=dict)
+
+    @property
+    def success(self) -> bool:
+        """Whether the identification reached a usable model (no failure listed)."""
+        return not self.failures
 
     def frf(self, section: str, input: str) -> FrfResult:
         """
@@ -242,6 +252,7 @@ class IdentificationResult:
             Nested dicts, lists, floats, ints, strings and booleans.
         """
         return _to_plain({
+            'status': {'success': self.success, 'failures': list(self.failures)},
             'sample_rate_Hz': self.sample_rate_Hz,
             'n_samples': self.n_samples,
             'duration_s': self.n_samples / self.sample_rate_Hz,
