@@ -28,8 +28,17 @@ from emfc_ros.core.model.operating_point import rest_position
 from emfc_ros.core.model.parameters import BalanceParameters, MechanicalParameters
 from emfc_ros.core.sim import Simulator
 
-#: Default free parameters (fields of MechanicalParameters).
-DEFAULT_FREE = ('c1_Nm_per_rad', 'd1_Nms_per_rad', 'c2_Nm_per_rad', 'd2_Nms_per_rad', 'F_off_N')
+#: Default free parameters (fields of MechanicalParameters): stiffnesses, dampings, the
+#: lever and coil-carrier inertias and the coil mass (together they set the three entries of
+#: the mass matrix, which is what the data determine), and the offset force.
+DEFAULT_FREE = ('c1_Nm_per_rad', 'd1_Nms_per_rad', 'c2_Nm_per_rad', 'd2_Nms_per_rad',
+                'J1c_kgm2', 'm3_kg', 'J2c_kgm2', 'F_off_N')
+
+#: Pseudo-parameter of the time-domain fit standing for ``F_off_N``: the lever-end rest
+#: position under the first setpoints [m]. The offset force that gives it is solved from the
+#: static equilibrium for every parameter set, so that changing a mass (and with it the weight
+#: moments) does not move the simulated lever out of the sensor range.
+REST_POSITION = 'rest_position_m'
 
 #: Units of the mechanical parameters by name suffix (longest first).
 _UNITS = (('_Nms_per_rad', 'N m s/rad'), ('_Nm_per_rad', 'N m/rad'), ('_m_per_s2', 'm/s^2'),
@@ -105,6 +114,55 @@ def rest_state(params: BalanceParameters, setpoints_V: Sequence[float], load_mas
     return op.x
 
 
+def offset_force_N(params: BalanceParameters, setpoints_V: Sequence[float],
+                   load_mass_kg: float, load_changer_coupled: bool, rest_position_m: float
+                   ) -> float:
+    """
+    Offset force that puts the lever end at rest at a given position under given setpoints.
+
+    Parameters
+    ----------
+    params : BalanceParameters
+        The balance (its ``F_off_N`` is the first guess).
+    setpoints_V : sequence of float
+        Coil and load-changer setpoints [V].
+    load_mass_kg : float
+        Mass on the pan [kg].
+    load_changer_coupled : bool
+        Whether the load changer's moving mass rides on the pan.
+    rest_position_m : float
+        Wanted rest position of the lever end [m].
+
+    Returns
+    -------
+    float
+        ``F_off_N`` [N] (three secant steps on the static equilibrium, which is nearly linear
+        in the offset force).
+    """
+    def y_at(force: float) -> float:
+        x = rest_state(params.with_mechanics(F_off_N=force), setpoints_V, load_mass_kg,
+                       load_changer_coupled)
+        m = params.mechanics
+        return float(m.l2_m * np.sin(x[0]) + m.l3_m * np.sin(x[1]))
+
+    f0 = float(params.mechanics.F_off_N)
+    step = 1.0e-4
+    y0, y1 = y_at(f0), y_at(f0 + step)
+    for _ in range(3):
+        slope = (y1 - y0) / step
+        if slope == 0.0 or not np.isfinite(slope):
+            break
+        f_new = f0 + (rest_position_m - y0) / slope
+        step = f_new - f0
+        if abs(step) < 1e-15:
+            return float(f_new)
+        f0, y0 = f_new, y_at(f_new)
+        y1 = y_at(f0 + step) if abs(y0 - rest_position_m) > 1e-15 else y0
+        if y1 == y0:
+            break
+    return float(f0)
+
+
 class BalanceGreyboxModel:
     """
     The recorded setpoints and the simulation of the balance model over them.
@@ -158,9 +216,16 @@ class BalanceGreyboxModel:
         Returns
         -------
         BalanceParameters
-            The modified copy.
+            The modified copy; a ``rest_position_m`` entry is turned into the ``F_off_N`` that
+            gives that rest position under the first recorded setpoints.
         """
-        return self.params.with_mechanics(**{k: float(v) for k, v in values.items()})
+        mech = {k: float(v) for k, v in values.items() if k != REST_POSITION}
+        params = self.params.with_mechanics(**mech)
+        if REST_POSITION in values:
+            force = offset_force_N(params, self.setpoints_V[0], self.load_mass_kg,
+                                   self.load_changer_coupled, float(values[REST_POSITION]))
+            params = params.with_mechanics(F_off_N=force)
+        return params
 
     def simulate_setpoints(self, values: Mapping[str, float], setpoints_V: np.ndarray,
                            ) -> np.ndarray:

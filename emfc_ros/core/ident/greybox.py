@@ -23,12 +23,24 @@ Optimisers:
 Scale of a parameter: ``spec.scale`` if given, else ``|initial|``, else half the bound range
 when finite, else 1.
 
-Uncertainty: ``Cov = s^2 (J^T J)^-1`` with ``s^2 = sum r^2 / (m - p)`` and ``J`` the
-Jacobian of the residual vector with respect to the free parameters at the optimum
-(``least_squares``' own Jacobian, or central differences with steps ``1e-6 scale`` for
-pattern search; these extra simulations are counted in ``n_evaluations`` but not in
-``optimizer_evaluations``). This assumes white residuals of the weighted size; the residual
-tests tell whether that holds.
+Uncertainty, with ``J`` the Jacobian of the residual vector with respect to the free
+parameters at the optimum (``least_squares``' own Jacobian, or central differences with steps
+``1e-6 scale`` for pattern search; these extra simulations are counted in ``n_evaluations`` but
+not in ``optimizer_evaluations``):
+
+* ``covariance='white'``: ``Cov = s^2 (J^T J)^-1`` with ``s^2 = sum r^2 / (m - p)``. Right only
+  for white residuals; output error with process noise is not white, and this covariance is
+  then far too small.
+* ``covariance='sandwich'`` (default): ``Cov = H^-1 S H^-1`` with ``H = J^T J`` and ``S`` the
+  covariance of the score ``J^T r`` estimated in the frequency domain, section by section:
+  ``S = N^-2 sum_k w_k Re(conj(J_k) J_k^T) P_k`` with ``J_k``, ``R_k`` the DFTs of the
+  Jacobian columns and of the residual, ``P_k = |R_k|^2`` averaged over
+  ``SANDWICH_SMOOTHING_LINES`` neighbouring lines and ``w_k`` 2 for the lines that stand for a
+  conjugate pair. For stationary noise of any colour the DFT lines are nearly uncorrelated,
+  so this is the heteroscedasticity-consistent (White) estimator written over frequencies:
+  it reduces to ``s^2 (J^T J)^-1`` for white residuals and stays right for coloured process
+  and measurement noise (the spectral form of a HAC estimator; Hannan, *Multiple Time
+  Series*, 1970, ch. VII).
 """
 
 from __future__ import annotations
@@ -36,16 +48,21 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 import time
-from typing import Callable, Dict, Mapping, Optional, Sequence, Tuple
+from typing import Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
-from scipy import linalg, optimize
+from scipy import optimize
 
 from emfc_ros.core.ident.errors import IdentificationError
 from emfc_ros.core.ident.metrics import fit_percent, input_correlation_test, whiteness_test
 from emfc_ros.core.ident.pattern_search import pattern_search, PatternSearchOptions
 
 METHODS = ('least_squares', 'pattern_search')
+COVARIANCES = ('sandwich', 'white')
+#: DFT lines over which the residual periodogram is averaged in the sandwich covariance.
+SANDWICH_SMOOTHING_LINES = 3
+#: Largest line lag of the score covariance of frequency-weighted residuals.
+SCORE_LAG_LINES = 8
 Simulate = Callable[[Dict[str, float], np.ndarray], np.ndarray]
 
 
@@ -178,6 +195,12 @@ class GreyboxResult:
         The optimiser's message.
     sections : tuple of SectionFit
         Per-section fit and residual tests.
+    covariance : ndarray
+        Covariance of the free parameters (order of ``free_names``; NaN when not computed).
+    covariance_method : str
+        ``'sandwich'``, ``'white'`` or ``'none'``.
+    initial : dict of str to float
+        Start values of the free parameters.
     """
 
     parameters: Dict[str, float]
@@ -192,6 +215,31 @@ class GreyboxResult:
     success: bool
     exit_reason: str
     sections: Tuple[SectionFit, ...]
+    covariance: Optional[np.ndarray] = None
+    covariance_method: str = 'none'
+    initial: Optional[Dict[str, float]] = None
+
+    def moved(self, relative: float = 1.0e-6) -> bool:
+        """
+        Whether the optimiser left its start.
+
+        Parameters
+        ----------
+        relative : float
+            Smallest change counted, relative to the start value (absolute for a start of 0).
+
+        Returns
+        -------
+        bool
+            True when some free parameter changed by more than that.
+        """
+        if not self.initial:
+            return True
+        for name in self.free_names:
+            v0 = self.initial[name]
+            if abs(self.parameters[name] - v0) > relative * (abs(v0) or 1.0):
+                return True
+        return False
 
     def summary(self) -> str:
         """
@@ -220,8 +268,23 @@ class _Problem:
     """Residuals of all sections for a vector of free parameters (in natural units)."""
 
     def __init__(self, simulate: Simulate, sections: Sequence[DataSection],
-                 specs: Sequence[ParameterSpec]) -> None:
+                 specs: Sequence[ParameterSpec],
+                 noise_weights: Optional[Sequence[np.ndarray]] = None,
+                 transients: Optional[Sequence[np.ndarray]] = None) -> None:
         self.simulate = simulate
+        self.noise_weights = None if noise_weights is None else \
+            [np.asarray(w, dtype=float) for w in noise_weights]
+        # Orthonormal bases of the weighted transient terms (real and imaginary parts stacked)
+        self.transient_q: Optional[List[Optional[np.ndarray]]] = None
+        if transients is not None and self.noise_weights is not None:
+            self.transient_q = []
+            for g, w in zip(transients, self.noise_weights):
+                if g is None or np.size(g) == 0:
+                    self.transient_q.append(None)
+                    continue
+                gw = np.asarray(g, dtype=complex).reshape(w.size, -1) * w[:, None]
+                q, _ = np.linalg.qr(np.vstack((gw.real, gw.imag)))
+                self.transient_q.append(q)
         self.specs = list(specs)
         self.free = [s for s in self.specs if s.free]
         self.sections = []
@@ -260,16 +323,34 @@ class _Problem:
             raise
         except Exception:          # a failing simulation is a bad point
             return np.full(sum(y.size for _, y, _ in self.sections), np.inf)
-        parts = [((yh - y).reshape(y.shape[0], -1) * w).ravel()
-                 for yh, (_, y, w) in zip(outs, self.sections)]
+        if self.noise_weights is None:
+            parts = [((yh - y).reshape(y.shape[0], -1) * w).ravel()
+                     for yh, (_, y, w) in zip(outs, self.sections)]
+            return np.concatenate(parts)
+        parts = []
+        qs = self.transient_q or [None] * len(self.sections)
+        for yh, (sec, y, _), nw, q in zip(outs, self.sections, self.noise_weights, qs):
+            e = np.fft.rfft(yh - y) * nw * math.sqrt(2.0 * sec.weight / y.shape[0])
+            stacked = np.concatenate((e.real, e.imag))
+            if q is not None:      # the transient term, projected out
+                stacked = stacked - q @ (q.T @ stacked)
+            parts.append(stacked)
         return np.concatenate(parts)
+
+    def lengths(self) -> List[int]:
+        """Residuals per section (in the time or the frequency domain)."""
+        if self.noise_weights is None:
+            return [y.size for _, y, _ in self.sections]
+        return [2 * w.size for w in self.noise_weights]
 
 
 def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
                 parameters: Sequence[ParameterSpec], *, method: str = 'least_squares',
                 options: Optional[PatternSearchOptions] = None,
                 max_nfev: Optional[int] = None, uncertainty: bool = True,
-                max_lag: int = 25) -> GreyboxResult:
+                max_lag: int = 25, covariance: str = 'sandwich',
+                noise_weights: Optional[Sequence[np.ndarray]] = None,
+                transients: Optional[Sequence[np.ndarray]] = None) -> GreyboxResult:
     """
     Fit the free parameters of a simulation to measured sections.
 
@@ -289,6 +370,22 @@ def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
         Evaluation budget of ``least_squares`` (its default otherwise).
     uncertainty : bool
         Compute standard errors and correlations.
+    covariance : {'sandwich', 'white'}
+        Covariance estimator (see the module docstring).
+    noise_weights : sequence of ndarray, optional
+        Frequency weighting of the simulation error, one array per section (single-output
+        sections) with a weight per ``rfft`` line, normally ``1 / sqrt(noise spectrum)``
+        (:mod:`~emfc_ros.core.ident.noise_model`): the residuals become the weighted DFT lines
+        of the output error, the maximum-likelihood criterion for Gaussian noise of that
+        spectrum (the weights must not come from the same noise line by line).
+    transients : sequence of ndarray, optional
+        With ``noise_weights``: per section a complex array of shape (lines, q) whose columns
+        span the transient term of the noise, ``T_k = sum_i c_i G_ki`` with real ``c_i``
+        (for noise through a linear system ``x+ = A x + B w``, ``y = C x``:
+        ``G_k = C (z_k I - A)^-1 z_k``, ``c`` the state at the section start minus the state
+        at its end). The term is projected out of each section's residual: a finite section
+        of strongly resonant noise leaks (its own start and end) into the lines near the
+        resonance, which would otherwise bias the estimate and fool its covariance.
     max_lag : int
         Largest lag of the residual tests.
 
@@ -305,10 +402,20 @@ def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
     """
     if method not in METHODS:
         raise IdentificationError(f'method must be one of {METHODS}, got {method!r}')
+    if covariance not in COVARIANCES:
+        raise IdentificationError(f'covariance must be one of {COVARIANCES}, got '
+                                  f'{covariance!r}')
     _check_specs(parameters)
     _check_sections(sections)
+    if noise_weights is not None:
+        if len(noise_weights) != len(sections) or any(
+                np.asarray(sec.outputs).ndim != 1
+                or np.asarray(w).shape != (np.asarray(sec.outputs).size // 2 + 1,)
+                for sec, w in zip(sections, noise_weights)):
+            raise IdentificationError('noise_weights need one array of n // 2 + 1 weights per '
+                                      'single-output section')
     start = time.perf_counter()
-    problem = _Problem(simulate, sections, parameters)
+    problem = _Problem(simulate, sections, parameters, noise_weights, transients)
     free = problem.free
     theta0 = np.array([s.initial for s in free], dtype=float)
     lower = np.array([s.lower for s in free], dtype=float)
@@ -343,11 +450,25 @@ def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
     k = theta.size
     se = np.full(k, np.nan)
     corr = np.full((k, k), np.nan)
+    cov = np.full((k, k), np.nan)
     if uncertainty:
         if jac is None:
             jac = _central_jacobian(problem.residuals, theta, 1e-6 * scales, lower, upper)
-        dof = max(r.size - k, 1)
-        cov = (cost_final / dof) * linalg.pinvh(jac.T @ jac)
+        jac = np.asarray(jac, dtype=float)
+        h_inv = _inverse(jac.T @ jac)
+        if covariance == 'white':
+            dof = max(r.size - k, 1)
+            cov = (cost_final / dof) * h_inv
+        else:
+            correction = r.size / max(r.size - k, 1)
+            if noise_weights is None:
+                score = score_covariance(jac, r, problem.lengths())
+            else:
+                score = line_score_covariance(jac, r, problem.lengths())
+            finite = np.all(np.isfinite(h_inv), axis=1)
+            cov = np.full((k, k), np.inf)
+            sub = np.ix_(finite, finite)
+            cov[sub] = h_inv[sub] @ score[sub] @ h_inv[sub] * correction
         se = np.sqrt(np.maximum(np.diag(cov), 0.0))
         with np.errstate(divide='ignore', invalid='ignore'):
             corr = cov / np.outer(se, se)
@@ -358,7 +479,129 @@ def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
     fits = _section_fits(problem, theta, max_lag)
     return GreyboxResult(values, errors, corr, tuple(s.name for s in free), cost_final,
                          problem.evaluations, opt_evals, time.perf_counter() - start, method,
-                         success, reason, fits)
+                         success, reason, fits, cov,
+                         covariance if uncertainty else 'none',
+                         {s.name: float(s.initial) for s in free})
+
+
+def _inverse(h: np.ndarray) -> np.ndarray:
+    """
+    Inverse of an information matrix; directions it does not determine get infinity.
+
+    Equilibrated first (``d H d`` with ``d = diag(H)^-1/2``) so that parameters of very
+    different magnitude do not look singular.
+    """
+    diag = np.diag(h).copy()
+    p = h.shape[0]
+    out = np.full((p, p), np.inf)
+    good = diag > 0.0
+    if not np.any(good):
+        return out
+    d = 1.0 / np.sqrt(diag[good])
+    hs = h[np.ix_(good, good)] * np.outer(d, d)
+    w, v = np.linalg.eigh(hs)
+    ok = w > max(w[-1], 0.0) * 1e-12
+    inv = (v[:, ok] / w[ok]) @ v[:, ok].T * np.outer(d, d)
+    # An undetermined direction: infinite variance for every parameter it involves.
+    bad_dir = np.any(np.abs(v[:, ~ok]) > 1e-6, axis=1) if np.any(~ok) else np.zeros(d.size,
+                                                                                    bool)
+    inv[bad_dir, :] = np.inf
+    inv[:, bad_dir] = np.inf
+    out[np.ix_(good, good)] = inv
+    return out
+
+
+def line_score_covariance(jac: np.ndarray, residuals: np.ndarray, lengths: Sequence[int],
+                          max_lag_lines: int = SCORE_LAG_LINES) -> np.ndarray:
+    """
+    Covariance of the score ``J^T r`` for frequency-domain residuals.
+
+    Per section the residuals are the real then the imaginary parts of ``L`` DFT lines; line
+    ``k`` adds ``s_k = J_re,k r_re,k + J_im,k r_im,k`` to the score. Lines of a finite record
+    are not quite independent (the leakage of a noise transient that does not die out within
+    the section correlates neighbouring lines, most at a sharp resonance of the noise), so
+    ``S = sum_|l|<=Lmax (1 - |l| / (Lmax + 1)) sum_k s_k s_{k+l}^T`` (Bartlett weights over the
+    line lag, a HAC estimator along frequency).
+
+    Parameters
+    ----------
+    jac : ndarray, shape (m, p)
+        Jacobian of the residuals.
+    residuals : ndarray, shape (m,)
+        Per section the real then the imaginary parts of its lines.
+    lengths : sequence of int
+        Residuals per section (twice its lines).
+    max_lag_lines : int
+        Largest line lag ``Lmax``.
+
+    Returns
+    -------
+    ndarray, shape (p, p)
+        The score covariance.
+    """
+    p = jac.shape[1]
+    out = np.zeros((p, p))
+    first = 0
+    for n in lengths:
+        half = n // 2
+        re = slice(first, first + half)
+        im = slice(first + half, first + n)
+        first += n
+        score = jac[re] * residuals[re, None] + jac[im] * residuals[im, None]
+        out += score.T @ score
+        for lag in range(1, min(int(max_lag_lines), half - 1) + 1):
+            c = score[:-lag].T @ score[lag:]
+            out += (1.0 - lag / (max_lag_lines + 1.0)) * (c + c.T)
+    return out
+
+
+def score_covariance(jac: np.ndarray, residuals: np.ndarray, lengths: Sequence[int],
+                     smoothing_lines: int = SANDWICH_SMOOTHING_LINES) -> np.ndarray:
+    """
+    Covariance of the score ``J^T r`` for noise of any colour (frequency-domain HAC).
+
+    Parameters
+    ----------
+    jac : ndarray, shape (m, p)
+        Jacobian of the residuals.
+    residuals : ndarray, shape (m,)
+        The residuals, sections one after the other.
+    lengths : sequence of int
+        Residuals per section (they sum to ``m``); sections count as independent.
+    smoothing_lines : int
+        Lines over which the residual periodogram is averaged (odd).
+
+    Returns
+    -------
+    ndarray, shape (p, p)
+        ``S`` of the module docstring.
+    """
+    p = jac.shape[1]
+    out = np.zeros((p, p))
+    first = 0
+    half = max(int(smoothing_lines) // 2, 0)
+    for n in lengths:
+        rs = residuals[first:first + n]
+        js = jac[first:first + n]
+        first += n
+        if n < 2:
+            continue
+        rk = np.fft.rfft(rs)
+        jk = np.fft.rfft(js, axis=0)
+        power = np.abs(rk) ** 2
+        if half:
+            c = np.concatenate(([0.0], np.cumsum(power)))
+            idx = np.arange(power.size)
+            lo = np.maximum(idx - half, 0)
+            hi = np.minimum(idx + half + 1, power.size)
+            power = (c[hi] - c[lo]) / (hi - lo)
+        w = np.full(power.size, 2.0)
+        w[0] = 1.0
+        if n % 2 == 0:
+            w[-1] = 1.0
+        weighted = jk * np.sqrt(w * power)[:, None]
+        out += np.real(weighted.conj().T @ weighted) / float(n) ** 2
+    return out
 
 
 def _check_specs(parameters: Sequence[ParameterSpec]) -> None:

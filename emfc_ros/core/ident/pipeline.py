@@ -22,7 +22,7 @@ serialises to plain data with :meth:`IdentificationResult.to_dict` (every key wi
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 import math
 import time
 from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
@@ -30,19 +30,15 @@ import warnings
 
 import numpy as np
 
-from emfc_ros.core.ident.balance_greybox import (BalanceGreyboxModel, match_modes,
-                                                 parameter_specs, values_of)
+from emfc_ros.core.ident import balance_fit
+from emfc_ros.core.ident.balance_fit import BalanceGreyboxResult
 from emfc_ros.core.ident.errors import IdentificationError
 from emfc_ros.core.ident.frf import estimate_frf, FrequencyResponseData
-from emfc_ros.core.ident.greybox import fit_greybox, GreyboxResult
 from emfc_ros.core.ident.local_polynomial import local_polynomial_frf
 from emfc_ros.core.ident.mimo import estimate_two_input_frf
-from emfc_ros.core.ident.pattern_search import PatternSearchOptions
 from emfc_ros.core.ident.pipeline_config import IdentificationConfig
 from emfc_ros.core.ident.static_fit import fit_polynomial, PolynomialFit
 from emfc_ros.core.ident.tf_fit import OrderSelection, select_order
-from emfc_ros.core.model.linear import linearise, LinearModel, Root
-from emfc_ros.core.model.load import loaded
 
 Progress = Callable[[str, float, str], None]
 
@@ -50,10 +46,6 @@ Progress = Callable[[str, float, str], None]
 REQUIRED_CHANNELS = ('coil_setpoint_V', 'load_changer_setpoint_V', 'coil_current_A',
                      'load_changer_current_A', 'position_m')
 
-#: Grey-box sections below this fit [%] raise a warning.
-FIT_WARNING_PERCENT = 90.0
-#: Residual whiteness fractions below this raise a warning.
-WHITENESS_WARNING = 0.9
 
 #: Smallest FRF std used as a fit weight, relative to |H|: the hold compensation and the
 #: LPM's local polynomials are good to about 0.1 %, so a noise-free record must not claim more
@@ -140,33 +132,6 @@ class StaticResult:
 
     fits: Dict[str, PolynomialFit] = field(default_factory=dict)
     n_plateaus: Dict[str, int] = field(default_factory=dict)
-
-
-@dataclass
-class BalanceGreyboxResult:
-    """
-    The grey-box fit of the balance model.
-
-    Attributes
-    ----------
-    fit : GreyboxResult
-        Parameters, standard errors, correlation, section fits, counts and time.
-    initial : dict of str to float
-        Start values of the free parameters.
-    linear_model : LinearModel
-        Linearisation of the fitted model in the experiment's configuration.
-    time_s : ndarray-valued dict
-        Per section: time from the section start [s].
-    measured_m, simulated_m : dict of str to ndarray
-        Per section: measured and simulated position [m].
-    """
-
-    fit: GreyboxResult
-    initial: Dict[str, float]
-    linear_model: LinearModel
-    time_s: Dict[str, np.ndarray] = field(default_factory=dict)
-    measured_m: Dict[str, np.ndarray] = field(default_factory=dict)
-    simulated_m: Dict[str, np.ndarray] = field(default_factory=dict)
 
 
 @dataclass
@@ -262,7 +227,9 @@ class IdentificationResult:
                               'load_changer_coupled': self.config.load_changer_coupled},
             'frequency_responses': [_frf_dict(r) for r in self.frfs],
             'static_characteristics': _static_dict(self.static),
-            'greybox': _greybox_dict(self.greybox),
+            'greybox': balance_fit.greybox_dict(self.greybox),
+            'model_parameters': (balance_fit.parameter_table(self.greybox)
+                                 if self.greybox is not None else None),
             'warnings': list(self.warnings),
             'timings_s': dict(self.timings_s),
             'pipeline_config': self.config.to_dict(),
@@ -564,62 +531,6 @@ def _tf_step(result: IdentificationResult, report: Progress) -> None:
     report('tf_fit', 1.0, 'transfer-function fits done')
 
 
-def coil_modes(result: IdentificationResult) -> List[Tuple[float, float]]:
-    """
-    Modes ``(frequency_Hz, damping_ratio)`` of the first fitted single-input FRF.
-
-    Coil sections come first, so this is the coil FRF's fit when there is one.
-
-    Parameters
-    ----------
-    result : IdentificationResult
-        Result with step (b) done.
-
-    Returns
-    -------
-    list of (float, float)
-        The chosen fit's modes (empty without a fit).
-    """
-    for r in result.frfs:
-        if r.fit is not None and not r.two_input:
-            return [(m.frequency_Hz, m.damping_ratio) for m in r.fit.chosen.modes]
-    return []
-
-
-def modes_near(measured: Sequence[Tuple[float, float]], model: LinearModel,
-               max_ratio: float = 1.5) -> List[Tuple[float, float]]:
-    """
-    For each mode of a model, the measured mode nearest in log-frequency.
-
-    Parameters
-    ----------
-    measured : sequence of (float, float)
-        Measured ``(frequency_Hz, damping_ratio)``.
-    model : LinearModel
-        The model whose pole pairs are matched.
-    max_ratio : float
-        Largest accepted frequency ratio between a model mode and its match.
-
-    Returns
-    -------
-    list of (float, float)
-        One match per model mode, or empty when a mode has no match (or two share one).
-    """
-    pairs = [p for p in model.poles() if p.s_rad_per_s.imag > 0.0]
-    if not measured or not pairs:
-        return []
-    freqs = np.array([m[0] for m in measured])
-    out, used = [], set()
-    for p in pairs:
-        dist = np.abs(np.log(freqs / p.frequency_Hz))
-        i = int(np.argmin(dist))
-        if dist[i] > np.log(max_ratio) or i in used:
-            return []
-        used.add(i)
-        out.append(tuple(measured[i]))
-    return out
-
-
 # ---------------------------------------------------------------- step (c)
 
 
@@ -713,108 +624,81 @@ def _greybox_step(result: IdentificationResult, channels: Mapping[str, np.ndarra
                   spans: Sequence[Span], report: Progress) -> None:
     cfg = result.config
     gcfg = cfg.greybox
-    names = gcfg.sections or tuple(s.name for s in spans)
+    # Default: every section but the static staircases, which drive the lever to its stops.
+    names = gcfg.sections or tuple(s.name for s in spans if 'staircase' not in s.name)
     chosen = [s for s in spans if s.name in names]
     for missing in sorted(set(names) - {s.name for s in chosen}):
         result.warnings.append(f'greybox: section {missing!r} is not in the recording; '
                                f'skipped')
     if not chosen:
-        result.warnings.append('greybox: no section to fit; skipped')
+        result.failures.append('greybox: no section to fit')
         return
-    fs = result.sample_rate_Hz
-    end = max(s.first_sample_index + s.n_samples for s in chosen)
-    setpoints = np.column_stack([channels['coil_setpoint_V'][:end],
-                                 channels['load_changer_setpoint_V'][:end]])
-    start = dict(gcfg.initial)
-    if gcfg.initialise_from_frf:
-        base = cfg.balance.with_mechanics(**start) if start else cfg.balance
-        modes = modes_near(coil_modes(result), linearise(loaded(
-            base.mechanics, cfg.load_mass_kg, cfg.load_changer_coupled)))
-        if len(modes) == 2:
-            start.update({k: v for k, v in match_modes(base, modes, cfg.load_mass_kg,
-                                                       cfg.load_changer_coupled,
-                                                       gcfg.free).items()
-                          if k not in gcfg.initial})
-    specs = parameter_specs(cfg.balance.mechanics, gcfg.free, gcfg.relative_bounds,
-                            gcfg.offset_force_bound_N, initial=start)
-    balance = cfg.balance.with_mechanics(**{k: v for k, v in start.items()
-                                            if k not in gcfg.free})
-    model = BalanceGreyboxModel(balance, fs, setpoints, cfg.load_mass_kg,
-                                cfg.load_changer_coupled)
-    sections = model.sections(channels['position_m'],
-                              [(s.name, s.first_sample_index, s.n_samples) for s in chosen])
-    if gcfg.initialise_from_frf and 'F_off_N' in gcfg.free \
-            and 'F_off_N' not in gcfg.initial:
-        specs = _initial_offset(model, specs, sections)
-    budget = gcfg.max_evaluations or (100 * (len(specs) + 1) if gcfg.method == 'least_squares'
-                                      else 2000 * len(specs))
-
-    def simulate(values: Dict[str, float], inputs: np.ndarray) -> np.ndarray:
-        before = model.n_simulations
-        out = model.simulate(values, inputs)
-        if model.n_simulations != before and model.n_simulations % 5 == 0:
-            report('greybox', min(model.n_simulations / budget, 0.99),
-                   f'{model.n_simulations} simulations')
-        return out
-
-    report('greybox', 0.0, f'grey-box fit of {list(values_of(specs))} with {gcfg.method}')
-    options = None
-    max_nfev = gcfg.max_evaluations or None
-    if gcfg.method == 'pattern_search':
-        options = PatternSearchOptions(
-            initial_mesh_size=gcfg.pattern_search_initial_mesh_size,
-            max_function_evaluations=gcfg.max_evaluations or None)
-        max_nfev = None
-    try:
-        fit = fit_greybox(simulate, sections, specs, method=gcfg.method, options=options,
-                          max_nfev=max_nfev)
-    except (IdentificationError, ValueError, RuntimeError) as exc:
-        result.warnings.append(f'greybox: {exc}')
+    by_name = {s.name: s for s in spans}
+    jobs = [(n, by_name[n].first_sample_index, by_name[n].n_samples, inputs)
+            for group, inputs in ((cfg.frf.coil_sections, ['coil']),
+                                  (cfg.frf.pan_sections, ['pan']),
+                                  (cfg.frf.two_input_sections, ['coil', 'pan']))
+            for n in group if n in by_name]
+    modes, anti = modal_features(result)
+    setting = balance_fit.Setting(cfg.balance.with_mechanics(**gcfg.initial),
+                                  cfg.load_mass_kg, cfg.load_changer_coupled,
+                                  result.sample_rate_Hz)
+    out, verdict = balance_fit.fit_balance(
+        setting, channels, [(s.name, s.first_sample_index, s.n_samples) for s in chosen],
+        jobs, modes, anti, gcfg, (cfg.frf.frequency_min_Hz, cfg.frf.frequency_max_Hz),
+        cfg.frf.hold_compensation, report)
+    result.warnings.extend(verdict.warnings)
+    result.failures.extend(verdict.failures)
+    if out is None:
         return
-    fitted = balance.with_mechanics(**fit.parameters)
-    lin = linearise(loaded(fitted.mechanics, cfg.load_mass_kg, cfg.load_changer_coupled))
-    out = BalanceGreyboxResult(fit, values_of(specs), lin)
-    record = model.simulate_record(fit.parameters)
-    for span in chosen:
-        sl = span.slice
-        out.time_s[span.name] = np.arange(span.n_samples) / fs
-        out.measured_m[span.name] = channels['position_m'][sl]
-        out.simulated_m[span.name] = record[sl]
-    for sec in fit.sections:
-        worst = float(np.min(sec.fit_percent))
-        if worst < FIT_WARNING_PERCENT:
-            result.warnings.append(f'greybox: section {sec.name!r} fits only {worst:.1f} %')
-        if sec.whiteness_fraction < WHITENESS_WARNING:
-            result.warnings.append(
-                f'greybox: residuals of section {sec.name!r} are not white '
-                f'({100 * sec.whiteness_fraction:.0f} % of lags inside the 99 % band): output '
-                f'error with coloured (process) noise, so the standard errors are optimistic')
-    if not fit.success:
-        result.warnings.append(f'greybox: the optimiser did not converge ({fit.exit_reason})')
     for r in result.frfs:
-        r.model_response = lin.frequency_response(r.frd.frequency_Hz, r.input).response_m_per_N
+        r.model_response = out.linear_model.frequency_response(
+            r.frd.frequency_Hz, r.input).response_m_per_N
     result.greybox = out
-    report('greybox', 1.0, f'grey-box fit done ({fit.optimizer_evaluations} evaluations)')
+    report('greybox', 1.0, f'grey-box fit done ({out.fit.optimizer_evaluations} evaluations)')
 
 
-def _initial_offset(model: BalanceGreyboxModel, specs: List[Any], sections: List[Any]
-                    ) -> List[Any]:
-    # F_off acts at the lever end like the coil force: its error shifts the whole simulated
-    # record by (static coil gain) x (error). One simulation gives the shift, hence the start.
-    values = values_of(specs)
-    sim = model.simulate_record(values)
-    shift = np.mean([np.mean(sec.outputs - sim[model.offset(sec.inputs):][:len(sec.outputs)])
-                     for sec in sections])
-    mech = model.balance(values).mechanics
-    gain = linearise(loaded(mech, model.load_mass_kg, model.load_changer_coupled)
-                     ).static_gain_m_per_N('coil')
-    out = []
-    for spec in specs:
-        if spec.name == 'F_off_N' and gain != 0.0:
-            value = float(np.clip(spec.initial + shift / gain, spec.lower, spec.upper))
-            spec = replace(spec, initial=value)
-        out.append(spec)
-    return out
+def modal_features(result: IdentificationResult
+                   ) -> Tuple[List[Tuple[float, float, float]],
+                              Optional[Tuple[float, float, float]]]:
+    """
+    The best-measured low and high mode and the coil anti-resonance of the TF fits.
+
+    Parameters
+    ----------
+    result : IdentificationResult
+        Result with step (b) done.
+
+    Returns
+    -------
+    modes : list of (float, float, float)
+        ``(frequency_Hz, damping_ratio, frequency_std_Hz)`` of the low and the high mode,
+        each from the single-input fit with the smallest relative uncertainty (empty when no
+        fit shows two modes).
+    anti_resonance : (float, float, float) or None
+        The coil anti-resonance nearest below the high mode, from a coil fit.
+    """
+    fits = [r for r in result.frfs if r.fit is not None and not r.two_input]
+    candidates = [m for r in fits if len(r.fit.chosen.modes) >= 2 for m in
+                  (r.fit.chosen.modes[0], r.fit.chosen.modes[-1])]
+    if not candidates:
+        return [], None
+    split = math.sqrt(min(m.frequency_Hz for m in candidates)
+                      * max(m.frequency_Hz for m in candidates))
+
+    def best(group: List[Any]) -> Tuple[float, float, float]:
+        m = min(group, key=lambda m: (m.frequency_std_Hz / m.frequency_Hz
+                                      if math.isfinite(m.frequency_std_Hz) else math.inf))
+        return (m.frequency_Hz, m.damping_ratio, m.frequency_std_Hz)
+
+    low = [m for m in candidates if m.frequency_Hz < split]
+    high = [m for m in candidates if m.frequency_Hz >= split]
+    if not low or not high:
+        return [], None
+    modes = [best(low), best(high)]
+    anti = [a for r in fits if r.input == 'coil' for a in r.fit.chosen.anti_resonances
+            if low[0].frequency_Hz < a.frequency_Hz < modes[1][0] * 1.2]
+    return modes, (best(anti) if anti else None)
 
 
 # ---------------------------------------------------------------- serialisation
@@ -823,13 +707,6 @@ def _initial_offset(model: BalanceGreyboxModel, specs: List[Any], sections: List
 def _mode_dict(mode: Any) -> dict:
     return {'frequency_Hz': mode.frequency_Hz, 'frequency_std_Hz': mode.frequency_std_Hz,
             'damping_ratio': mode.damping_ratio, 'damping_ratio_std': mode.damping_std}
-
-
-def _root_dict(root: Root) -> dict:
-    return {'real_rad_per_s': float(root.s_rad_per_s.real),
-            'imag_rad_per_s': float(abs(root.s_rad_per_s.imag)),
-            'frequency_Hz': root.frequency_Hz, 'signed_frequency_Hz': root.signed_frequency_Hz,
-            'damping_ratio': root.damping_ratio}
 
 
 def _frf_dict(r: FrfResult) -> dict:
@@ -885,38 +762,6 @@ def _static_dict(static: Optional[StaticResult]) -> Optional[dict]:
                     'r_squared': fit.r_squared, 'residual_std': fit.residual_std,
                     'residual_std_unit': fit.y_unit, 'n_plateaus': static.n_plateaus.get(key)}
     return out
-
-
-def _greybox_dict(g: Optional[BalanceGreyboxResult]) -> Optional[dict]:
-    if g is None:
-        return None
-    from emfc_ros.core.ident.balance_greybox import unit_of
-    fit = g.fit
-    free = list(fit.free_names)
-    params = {name: {'value': fit.parameters[name],
-                     'standard_error': fit.standard_errors[name],
-                     'initial': g.initial.get(name), 'unit': unit_of(name)}
-              for name in free}
-    lin = g.linear_model
-    return {
-        'method': fit.method, 'success': fit.success, 'exit_reason': fit.exit_reason,
-        'cost': fit.cost, 'optimizer_evaluations': fit.optimizer_evaluations,
-        'n_evaluations': fit.n_evaluations, 'time_s': fit.time_s,
-        'parameters': params,
-        'correlation': {'names': free, 'matrix': np.asarray(fit.correlation).tolist()},
-        'sections': [{'name': s.name, 'fit_percent': float(np.min(s.fit_percent)),
-                      'rms_error_m': float(np.max(s.rms_error)),
-                      'whiteness_fraction': s.whiteness_fraction,
-                      'input_correlation_fraction': s.input_correlation_fraction}
-                     for s in fit.sections],
-        'linearised_model': {
-            'poles': [_root_dict(p) for p in lin.poles()],
-            'zeros_coil': [_root_dict(z) for z in lin.zeros('coil')],
-            'zeros_pan': [_root_dict(z) for z in lin.zeros('pan')],
-            'static_gain_coil_m_per_N': lin.static_gain_m_per_N('coil'),
-            'static_gain_pan_m_per_N': lin.static_gain_m_per_N('pan'),
-        },
-    }
 
 
 def _to_plain(value: Any) -> Any:

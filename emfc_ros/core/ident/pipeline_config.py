@@ -145,6 +145,11 @@ class GreyboxConfig:
     initialise_from_frf : bool
         Start the stiffnesses and dampings where the linearised model reproduces the modes of
         the coil FRF fit (when available).
+    noise_weighting : bool
+        Weight the simulation error by the inverse noise spectrum (estimated from the residual
+        at the frequency-domain start): the maximum-likelihood criterion for coloured noise.
+        False: the paper's plain simulation error, whose estimates of the high mode and the
+        inertias are far less precise where low-frequency process noise dominates.
     pattern_search_initial_mesh_size : float
         First mesh of the pattern search as a fraction of each parameter's scale (its start
         value; 1 mN for ``F_off_N``). MATLAB's default 1 (steps of 100 %) jumps between the
@@ -161,6 +166,7 @@ class GreyboxConfig:
     max_evaluations: int = 0
     initial: Dict[str, float] = field(default_factory=dict)
     initialise_from_frf: bool = True
+    noise_weighting: bool = True
     pattern_search_initial_mesh_size: float = 0.0625
 
 
@@ -350,6 +356,7 @@ def _greybox(cfg: Mapping[str, Any], path: str) -> GreyboxConfig:
         initial=initial,
         initialise_from_frf=get_bool(cfg, 'initialise_from_frf', path,
                                      default=d.initialise_from_frf),
+        noise_weighting=get_bool(cfg, 'noise_weighting', path, default=d.noise_weighting),
         pattern_search_initial_mesh_size=get_float(
             cfg, 'pattern_search_initial_mesh_size', path,
             default=d.pattern_search_initial_mesh_size, minimum=0.0, maximum=100.0,
