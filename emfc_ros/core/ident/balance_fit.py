@@ -62,6 +62,15 @@ FIT_WARNING_PERCENT = 97.0
 #: Time- and frequency-domain estimates further apart than this many combined standard
 #: uncertainties are reported (model error: the two weigh the data differently).
 CONSISTENCY_SIGMAS = 5.0
+#: ``ftol``/``xtol`` of the time-domain fit. It starts next to the optimum (the frequency-domain
+#: fit), so a relative cost change of 1e-6 (0.4 on a noise-weighted cost of about 4e5 on the
+#: shipped trajectory) leaves the parameters within about 0.1 standard uncertainty of the
+#: 1e-8 result (measured) at half the simulations.
+TIME_DOMAIN_TOLERANCE = 1.0e-6
+#: 99.9 % quantile of chi-square with 3 degrees of freedom: the identified mass matrix is
+#: inconsistent with the configured masses when its three entries are further from the
+#: configured ones than this (in units of the configured masses' relative uncertainty).
+MASS_CONSISTENCY_CHI2 = 16.27
 #: A free parameter within this fraction of its scale from a bound counts as at the bound.
 BOUND_TOLERANCE = 1.0e-6
 
@@ -539,6 +548,45 @@ def check(fit: GreyboxResult, specs: Sequence[ParameterSpec], fd: Optional[Any],
                 f'model error (characteristics, nonlinearity) weighs on the estimate')
 
 
+def check_masses(derived: Mapping[str, Derived], setting: Setting, relative_uncertainty: float,
+                 verdict: Verdict) -> None:
+    """
+    Fail when the identified mass matrix contradicts the configured masses.
+
+    The data fix the mass matrix only up to the scale of the sensor and actuator
+    characteristics (a sensor sensitivity 10 % off scales every stiffness, damping and
+    inertia by 1/1.1 and fits as well). The configured masses, known to
+    ``relative_uncertainty``, are the check: ``sum ((M_id - M_cfg) / (u M_cfg))^2`` over the
+    three entries above :data:`MASS_CONSISTENCY_CHI2` is a failure.
+
+    Parameters
+    ----------
+    derived : mapping of str to Derived
+        With the ``mass_matrix_*`` entries.
+    setting : Setting
+        The configured balance and load.
+    relative_uncertainty : float
+        Relative standard uncertainty of the configured mass-matrix entries (0 disables).
+    verdict : Verdict
+        Collects the failure.
+    """
+    if not relative_uncertainty > 0.0 or not all(k in derived for k, _ in MASS_KEYS):
+        return
+    m = mass_matrix(np.zeros(2), loaded(setting.balance.mechanics, setting.load_mass_kg,
+                                        setting.load_changer_coupled))
+    configured = (m[0, 0], m[0, 1], m[1, 1])
+    rel = [derived[k].value / c - 1.0 for (k, _), c in zip(MASS_KEYS, configured) if c != 0.0]
+    chi2 = float(sum((r / relative_uncertainty) ** 2 for r in rel))
+    if chi2 > MASS_CONSISTENCY_CHI2:
+        shown = ', '.join(f'{100 * r:+.1f} %' for r in rel)
+        verdict.failures.append(
+            f'greybox: the identified mass matrix differs from the configured masses by '
+            f'{shown} (chi-square {chi2:.1f} with the masses known to '
+            f'{100 * relative_uncertainty:g} %): a sensor or actuator characteristic is off '
+            f'(every stiffness, damping and inertia scales with it), or the configured masses '
+            f'are; set greybox.mass_relative_uncertainty if the masses are known worse')
+
+
 def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
                 sections: Sequence[Tuple[str, int, int]],
                 frf_jobs: Sequence[Tuple[str, int, int, Sequence[str]]],
@@ -577,6 +625,23 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
     verdict : Verdict
         Failures and warnings.
     """
+    try:
+        return _fit_balance(setting, channels, sections, frf_jobs, modes, anti_resonance, gcfg,
+                            band_Hz, hold, report)
+    except (IdentificationError, ValueError, RuntimeError, ArithmeticError,
+            np.linalg.LinAlgError) as exc:
+        verdict = Verdict()
+        verdict.failures.append(f'greybox: the fit could not run on these data: {exc}')
+        return None, verdict
+
+
+def _fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
+                 sections: Sequence[Tuple[str, int, int]],
+                 frf_jobs: Sequence[Tuple[str, int, int, Sequence[str]]],
+                 modes: Sequence[Tuple[float, float, float]],
+                 anti_resonance: Optional[Tuple[float, float, float]], gcfg: Any,
+                 band_Hz: Tuple[float, float], hold: str, report: Progress
+                 ) -> Tuple[Optional[BalanceGreyboxResult], Verdict]:
     verdict = Verdict()
     mech = setting.balance.mechanics
     requested = [n for n in gcfg.free if n != 'F_off_N']
@@ -637,11 +702,14 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
                                             setting)
     try:
         fit = fit_greybox(simulate, data, specs, method=gcfg.method, options=options,
-                          max_nfev=max_nfev, noise_weights=weights, transients=transients)
+                          max_nfev=max_nfev, noise_weights=weights, transients=transients,
+                          tolerance=TIME_DOMAIN_TOLERANCE)
     except (IdentificationError, ValueError, RuntimeError) as exc:
         verdict.failures.append(f'greybox: {exc}')
         return None, verdict
     check(fit, specs, fd, verdict)
+    derived = derived_quantities(model, fit, setting)
+    check_masses(derived, setting, gcfg.mass_relative_uncertainty, verdict)
     for n in free:
         sources[n] = 'identified (time-domain fit)'
     fitted = model.balance(fit.parameters)
@@ -652,7 +720,7 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
     lin = linearise(loaded(fitted.mechanics, setting.load_mass_kg,
                            setting.load_changer_coupled))
     out = BalanceGreyboxResult(fit, {s.name: s.initial for s in specs}, lin, parameters,
-                               derived_quantities(model, fit, setting), fd, choice, sources)
+                               derived, fd, choice, sources)
     record = model.simulate_record(fit.parameters)
     fs = setting.sample_rate_Hz
     for name, first, n in sections:
@@ -661,6 +729,19 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
         out.measured_m[name] = np.asarray(channels['position_m'][sl])
         out.simulated_m[name] = record[sl]
     return out, verdict
+
+
+#: What each mass-matrix coordinate is identified together with (the data see only the entries).
+CONDITIONAL = {
+    'J1c_kgm2': 'identified through M11 = J1c + m1 (r1^2 + h1^2) + (mp + pan load + coupled '
+                'load changer) l1^2 + (m2 + m3) l2^2: right only if the fixed masses and the '
+                'pan load are',
+    'm3_kg': 'identified through M12 = l2 (m3 l3 + m2 r2) and M22: right only if m2, r2 and '
+             'the lengths are',
+    'J2c_kgm2': 'identified through M22 = J2c + m2 (r2^2 + h2^2) + m3 l3^2: right only if m2 '
+                'and the lengths are',
+    'F_off_N': 'tied to the weights of the identified masses (the static moment balance)',
+}
 
 
 def parameter_table(g: BalanceGreyboxResult) -> List[Dict[str, Any]]:
@@ -675,7 +756,8 @@ def parameter_table(g: BalanceGreyboxResult) -> List[Dict[str, Any]]:
     Returns
     -------
     list of dict
-        ``name, value, unit, status, source, standard_uncertainty`` (None when fixed).
+        ``name, value, unit, status, source, standard_uncertainty`` (None when fixed), and a
+        ``note`` for identified parameters that hold only together with fixed ones.
     """
     rows = []
     for name, value in g.parameters.items():
@@ -685,10 +767,13 @@ def parameter_table(g: BalanceGreyboxResult) -> List[Dict[str, Any]]:
             se: Optional[float] = g.derived['F_off_N'].standard_uncertainty
         else:
             se = g.fit.standard_errors.get(name) if identified else None
-        rows.append({'name': name, 'value': value, 'unit': unit_of(name),
-                     'status': 'identified' if identified else 'fixed',
-                     'source': g.sources.get(name, 'configuration (balance)'),
-                     'standard_uncertainty': se})
+        row = {'name': name, 'value': value, 'unit': unit_of(name),
+               'status': 'identified' if identified else 'fixed',
+               'source': g.sources.get(name, 'configuration (balance)'),
+               'standard_uncertainty': se}
+        if identified and name in CONDITIONAL:
+            row['note'] = CONDITIONAL[name]
+        rows.append(row)
     return rows
 
 

@@ -522,7 +522,9 @@ def feature_start(model: MechanicsFrfModel, frfs: Sequence[MeasuredFrf],
 
     The unknowns are the logarithms of the (positive) free parameters; each start multiplies
     every stiffness and damping by one of ``multipliers`` (masses and inertias stay), so the
-    result does not depend on the start values being close.
+    result does not depend on the start values being close. The starts are tried in order
+    until one matches every feature within its tolerance (weighted mismatch below 1 each on
+    average).
 
     Parameters
     ----------
@@ -577,6 +579,8 @@ def feature_start(model: MechanicsFrfModel, frfs: Sequence[MeasuredFrf],
         cost = float(res.fun @ res.fun)
         if best is None or cost < best[0]:
             best = (cost, res.x)
+        if cost < target.size:     # every feature matched within its tolerance
+            break
     if best is None or best[0] >= 1e6 * target.size:
         raise IdentificationError('frequency-domain start: no parameter set reproduces two '
                                   'modes of the measured responses')

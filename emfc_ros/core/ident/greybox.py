@@ -350,7 +350,8 @@ def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
                 max_nfev: Optional[int] = None, uncertainty: bool = True,
                 max_lag: int = 25, covariance: str = 'sandwich',
                 noise_weights: Optional[Sequence[np.ndarray]] = None,
-                transients: Optional[Sequence[np.ndarray]] = None) -> GreyboxResult:
+                transients: Optional[Sequence[np.ndarray]] = None,
+                tolerance: float = 1.0e-8) -> GreyboxResult:
     """
     Fit the free parameters of a simulation to measured sections.
 
@@ -388,6 +389,9 @@ def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
         resonance, which would otherwise bias the estimate and fool its covariance.
     max_lag : int
         Largest lag of the residual tests.
+    tolerance : float
+        ``ftol`` and ``xtol`` of ``least_squares`` (relative change of the cost and of the
+        parameters that ends the fit).
 
     Returns
     -------
@@ -428,7 +432,8 @@ def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
     before = problem.evaluations
     if method == 'least_squares':
         res = optimize.least_squares(problem.residuals, theta0, bounds=(lower, upper),
-                                     method='trf', x_scale=scales, max_nfev=max_nfev)
+                                     method='trf', x_scale=scales, max_nfev=max_nfev,
+                                     ftol=tolerance, xtol=tolerance)
         theta, jac = res.x, res.jac
         success, reason = bool(res.status > 0), str(res.message)
     else:

@@ -150,6 +150,9 @@ class GreyboxConfig:
         at the frequency-domain start): the maximum-likelihood criterion for coloured noise.
         False: the paper's plain simulation error, whose estimates of the high mode and the
         inertias are far less precise where low-frequency process noise dominates.
+    mass_relative_uncertainty : float
+        Relative standard uncertainty of the configured masses and inertias (mass-matrix
+        entries); the identified mass matrix must agree within it (0 disables the check).
     pattern_search_initial_mesh_size : float
         First mesh of the pattern search as a fraction of each parameter's scale (its start
         value; 1 mN for ``F_off_N``). MATLAB's default 1 (steps of 100 %) jumps between the
@@ -167,6 +170,7 @@ class GreyboxConfig:
     initial: Dict[str, float] = field(default_factory=dict)
     initialise_from_frf: bool = True
     noise_weighting: bool = True
+    mass_relative_uncertainty: float = 0.05
     pattern_search_initial_mesh_size: float = 0.0625
 
 
@@ -357,6 +361,9 @@ def _greybox(cfg: Mapping[str, Any], path: str) -> GreyboxConfig:
         initialise_from_frf=get_bool(cfg, 'initialise_from_frf', path,
                                      default=d.initialise_from_frf),
         noise_weighting=get_bool(cfg, 'noise_weighting', path, default=d.noise_weighting),
+        mass_relative_uncertainty=get_float(cfg, 'mass_relative_uncertainty', path,
+                                            default=d.mass_relative_uncertainty, minimum=0.0,
+                                            maximum=10.0),
         pattern_search_initial_mesh_size=get_float(
             cfg, 'pattern_search_initial_mesh_size', path,
             default=d.pattern_search_initial_mesh_size, minimum=0.0, maximum=100.0,
