@@ -37,8 +37,9 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 import numpy as np
 
 from emfc_ros.core.ident import balance_frf
-from emfc_ros.core.ident.balance_greybox import (BalanceGreyboxModel, REST_POSITION,
-                                                 unit_of)
+from emfc_ros.core.ident.balance_greybox import (BalanceGreyboxModel, MASS_COORDINATES,
+                                                 mass_matrix_entries, MASS_MATRIX_NAMES,
+                                                 REST_POSITION, unit_of, with_values)
 from emfc_ros.core.ident.errors import IdentificationError
 from emfc_ros.core.ident.greybox import fit_greybox, GreyboxResult, ParameterSpec
 from emfc_ros.core.ident.identifiability import (choose_free, FreeSetChoice,
@@ -79,7 +80,51 @@ INERTIA_NAMES = ('J1c_kgm2', 'm3_kg', 'J2c_kgm2', 'm1_kg', 'm2_kg', 'mp_kg',
                  'load_changer_mass_kg')
 #: Parameters the frequency-domain stage can estimate (positive, dynamic).
 DYNAMIC_NAMES = ('c1_Nm_per_rad', 'd1_Nms_per_rad', 'c2_Nm_per_rad', 'd2_Nms_per_rad') + \
-    INERTIA_NAMES
+    INERTIA_NAMES + MASS_MATRIX_NAMES
+
+
+def configured_value(setting: 'Setting', name: str) -> float:
+    """
+    A parameter's configured value (mass-matrix entries from the configured masses).
+
+    Parameters
+    ----------
+    setting : Setting
+        The configuration.
+    name : str
+        A mechanical parameter or one of the mass-matrix entries.
+
+    Returns
+    -------
+    float
+        The value.
+    """
+    if name in MASS_MATRIX_NAMES:
+        entries = mass_matrix_entries(setting.balance.mechanics, setting.load_mass_kg,
+                                      setting.load_changer_coupled)
+        return float(entries[MASS_MATRIX_NAMES.index(name)])
+    return float(getattr(setting.balance.mechanics, name))
+
+
+def internal_names(requested: Sequence[str]) -> List[str]:
+    """
+    The fit's free parameters: the three mass-matrix entries instead of their coordinates.
+
+    Parameters
+    ----------
+    requested : sequence of str
+        Free mechanical parameters as configured.
+
+    Returns
+    -------
+    list of str
+        The same, with ``J1c_kgm2``, ``m3_kg``, ``J2c_kgm2`` replaced by the entries
+        ``M11_kgm2``, ``M12_kgm2``, ``M22_kgm2`` when all three are requested (the entries
+        are what the data determine; each coordinate alone is a small part of its entry).
+    """
+    if not all(c in requested for c in MASS_COORDINATES):
+        return list(requested)
+    return [n for n in requested if n not in MASS_COORDINATES] + list(MASS_MATRIX_NAMES)
 
 
 @dataclass(frozen=True)
@@ -227,8 +272,7 @@ def frequency_domain_stage(setting: Setting, channels: Mapping[str, np.ndarray],
     choice : FreeSetChoice or None
         The identifiability analysis (None without responses).
     """
-    mech = setting.balance.mechanics
-    configured = {n: float(getattr(mech, n)) for n in names}
+    configured = {n: configured_value(setting, n) for n in names}
     frfs = balance_frf.measure_frfs(channels, setting.sample_rate_Hz, jobs, setting.balance,
                                     frequency_min_Hz=band_Hz[0], frequency_max_Hz=band_Hz[1],
                                     hold=hold)
@@ -377,7 +421,8 @@ def time_domain_specs(start: Mapping[str, float], free: Sequence[str],
     specs = []
     for n in free:
         v = float(start[n])
-        lo = 0.0 if n in INERTIA_NAMES else relative_bounds[0] * v
+        lo = 0.0 if n in INERTIA_NAMES and n not in MASS_COORDINATES \
+            else relative_bounds[0] * v
         specs.append(ParameterSpec(n, v, lo, relative_bounds[1] * v, True, abs(v) or 1.0,
                                    unit_of(n)))
     if rest_position_m is not None:
@@ -487,13 +532,16 @@ def derived_quantities(model: BalanceGreyboxModel, fit: GreyboxResult,
                       setting.load_changer_coupled)
 
     def numbers(v: Dict[str, float]) -> np.ndarray:
+        own = model.balance(v).mechanics
         mech = mechanics(v)
         m = mass_matrix(np.zeros(2), mech)
-        return np.concatenate(([model.balance(v).mechanics.F_off_N, m[0, 0], m[0, 1], m[1, 1]],
+        return np.concatenate(([own.F_off_N, m[0, 0], m[0, 1], m[1, 1]],
+                               [getattr(own, n) for n in MASS_COORDINATES],
                                modal_summary(linearise(mech))))
 
     value, std = propagate(numbers, values, names, cov, steps)
-    keys = (('F_off_N', 'N'),) + MASS_KEYS + MODE_KEYS
+    keys = (('F_off_N', 'N'),) + MASS_KEYS + tuple((n, unit_of(n)) for n in MASS_COORDINATES) \
+        + MODE_KEYS
     return {k: Derived(float(v), float(s), u) for (k, u), v, s in zip(keys, value, std)
             if math.isfinite(v)}
 
@@ -644,14 +692,14 @@ def _fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
                  ) -> Tuple[Optional[BalanceGreyboxResult], Verdict]:
     verdict = Verdict()
     mech = setting.balance.mechanics
-    requested = [n for n in gcfg.free if n != 'F_off_N']
+    requested = internal_names([n for n in gcfg.free if n != 'F_off_N'])
     fit_offset = 'F_off_N' in gcfg.free
     fixed_by_user = set(gcfg.initial)
     sources = {n: 'configuration (balance)' for n in mech.__dataclass_fields__}
     for n in fixed_by_user:
         sources[n] = 'options (greybox.initial)'
     dynamic = [n for n in requested if n in DYNAMIC_NAMES]
-    start = {n: float(getattr(mech, n)) for n in requested}
+    start = {n: configured_value(setting, n) for n in requested}
     fd, choice = None, None
     if gcfg.initialise_from_frf and dynamic:
         solved, fd, choice = frequency_domain_stage(setting, channels, frf_jobs, modes,
@@ -670,8 +718,8 @@ def _fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
     n_end = max(first + n for _, first, n in sections)
     setpoints = np.column_stack([channels['coil_setpoint_V'][:n_end],
                                  channels['load_changer_setpoint_V'][:n_end]])
-    balance = setting.balance.with_mechanics(**{k: v for k, v in start.items()
-                                                if k not in free})
+    balance = with_values(setting.balance, {k: v for k, v in start.items() if k not in free},
+                          setting.load_mass_kg, setting.load_changer_coupled)
     model = BalanceGreyboxModel(balance, setting.sample_rate_Hz, setpoints,
                                 setting.load_mass_kg, setting.load_changer_coupled)
     data = model.sections(channels['position_m'], sections)
@@ -712,6 +760,9 @@ def _fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
     check_masses(derived, setting, gcfg.mass_relative_uncertainty, verdict)
     for n in free:
         sources[n] = 'identified (time-domain fit)'
+    if all(n in free for n in MASS_MATRIX_NAMES):
+        for n in MASS_COORDINATES:
+            sources[n] = 'identified (time-domain fit, through the mass-matrix entries)'
     fitted = model.balance(fit.parameters)
     if fit_offset:
         sources['F_off_N'] = 'identified (time-domain fit, through the rest position)'
@@ -761,10 +812,12 @@ def parameter_table(g: BalanceGreyboxResult) -> List[Dict[str, Any]]:
     """
     rows = []
     for name, value in g.parameters.items():
-        identified = name in g.fit.free_names or (name == 'F_off_N'
-                                                  and REST_POSITION in g.fit.free_names)
-        if name == 'F_off_N' and 'F_off_N' in g.derived:
-            se: Optional[float] = g.derived['F_off_N'].standard_uncertainty
+        through = {'F_off_N': (REST_POSITION,)}
+        through.update({n: MASS_MATRIX_NAMES for n in MASS_COORDINATES})
+        identified = name in g.fit.free_names or (
+            name in through and all(t in g.fit.free_names for t in through[name]))
+        if identified and name in through and name in g.derived:
+            se: Optional[float] = g.derived[name].standard_uncertainty
         else:
             se = g.fit.standard_errors.get(name) if identified else None
         row = {'name': name, 'value': value, 'unit': unit_of(name),

@@ -220,15 +220,18 @@ class MechanicsFrfModel:
         Parameters
         ----------
         values : mapping of str to float
-            Mechanical parameters replacing the balance's.
+            Mechanical parameters replacing the balance's (mass-matrix entries too, see
+            :func:`~emfc_ros.core.ident.balance_greybox.with_values`).
 
         Returns
         -------
         LinearModel
             At rest at ``q = 0`` in the experiment's configuration.
         """
-        mech = self.balance.with_mechanics(**{k: float(v) for k, v in values.items()
-                                              if k != 'F_off_N'}).mechanics
+        from emfc_ros.core.ident.balance_greybox import with_values
+
+        mech = with_values(self.balance, {k: v for k, v in values.items() if k != 'F_off_N'},
+                           self.load_mass_kg, self.load_changer_coupled).mechanics
         return linearise(loaded(mech, self.load_mass_kg, self.load_changer_coupled))
 
     def responses(self, values: Mapping[str, float], frfs: Sequence[MeasuredFrf]

@@ -18,7 +18,7 @@ builds them); any other input array is simulated on its own, from rest.
 
 from __future__ import annotations
 
-from dataclasses import fields
+from dataclasses import fields, replace
 from typing import Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
@@ -33,6 +33,16 @@ from emfc_ros.core.sim import Simulator
 #: the mass matrix, which is what the data determine), and the offset force.
 DEFAULT_FREE = ('c1_Nm_per_rad', 'd1_Nms_per_rad', 'c2_Nm_per_rad', 'd2_Nms_per_rad',
                 'J1c_kgm2', 'm3_kg', 'J2c_kgm2', 'F_off_N')
+
+#: Pseudo-parameters standing for the lever and coil-carrier inertias and the coil mass: the
+#: entries of the mass matrix at rest in the experiment's configuration [kg m^2], which is
+#: what the data determine. ``J1c_kgm2``, ``m3_kg`` and ``J2c_kgm2`` follow from them (the
+#: entries are affine in those three) given the fixed masses, lengths and pan load.
+MASS_MATRIX_NAMES = ('M11_kgm2', 'M12_kgm2', 'M22_kgm2')
+#: The mechanical parameters the mass-matrix entries set.
+MASS_COORDINATES = ('J1c_kgm2', 'm3_kg', 'J2c_kgm2')
+#: Steps of the coordinates for the affine map (exact for any step: M is linear in them).
+_COORDINATE_STEPS = (1.0e-6, 1.0e-3, 1.0e-7)
 
 #: Pseudo-parameter of the time-domain fit standing for ``F_off_N``: the lever-end rest
 #: position under the first setpoints [m]. The offset force that gives it is solved from the
@@ -163,6 +173,96 @@ def offset_force_N(params: BalanceParameters, setpoints_V: Sequence[float],
     return float(f0)
 
 
+def mass_matrix_entries(mech: MechanicalParameters, load_mass_kg: float,
+                        load_changer_coupled: bool) -> np.ndarray:
+    """
+    ``[M11, M12, M22]`` at rest in a configuration.
+
+    Parameters
+    ----------
+    mech : MechanicalParameters
+        The empty, uncoupled mechanics.
+    load_mass_kg : float
+        Mass on the pan [kg].
+    load_changer_coupled : bool
+        Whether the load changer's moving mass rides on the pan.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        The entries [kg m^2].
+    """
+    from emfc_ros.core.model.load import loaded
+    from emfc_ros.core.model.mechanics import mass_matrix
+
+    m = mass_matrix(np.zeros(2), loaded(mech, load_mass_kg, load_changer_coupled))
+    return np.array([m[0, 0], m[0, 1], m[1, 1]])
+
+
+def coordinates_for(mech: MechanicalParameters, load_mass_kg: float,
+                    load_changer_coupled: bool, entries: Sequence[float]) -> Dict[str, float]:
+    """
+    ``J1c``, ``m3`` and ``J2c`` that give wanted mass-matrix entries (others fixed).
+
+    Parameters
+    ----------
+    mech : MechanicalParameters
+        The mechanics (fixed masses and lengths).
+    load_mass_kg : float
+        Mass on the pan [kg].
+    load_changer_coupled : bool
+        Whether the load changer's moving mass rides on the pan.
+    entries : sequence of float
+        Wanted ``[M11, M12, M22]`` [kg m^2].
+
+    Returns
+    -------
+    dict of str to float
+        The three coordinates (may be negative when the fixed masses cannot give the entries;
+        :class:`MechanicalParameters` then refuses them).
+    """
+    base = np.array([getattr(mech, n) for n in MASS_COORDINATES], dtype=float)
+    m0 = mass_matrix_entries(mech, load_mass_kg, load_changer_coupled)
+    cols = []
+    for i, (name, step) in enumerate(zip(MASS_COORDINATES, _COORDINATE_STEPS)):
+        moved = replace(mech, **{name: base[i] + step})
+        cols.append((mass_matrix_entries(moved, load_mass_kg, load_changer_coupled) - m0) / step)
+    x = base + np.linalg.solve(np.column_stack(cols), np.asarray(entries, dtype=float) - m0)
+    return dict(zip(MASS_COORDINATES, (float(v) for v in x)))
+
+
+def with_values(params: BalanceParameters, values: Mapping[str, float], load_mass_kg: float,
+                load_changer_coupled: bool) -> BalanceParameters:
+    """
+    A balance with mechanical parameters and mass-matrix entries replaced.
+
+    Parameters
+    ----------
+    params : BalanceParameters
+        The balance.
+    values : mapping of str to float
+        Mechanical parameters and any of :data:`MASS_MATRIX_NAMES` (``rest_position_m`` is
+        ignored here).
+    load_mass_kg : float
+        Mass on the pan [kg].
+    load_changer_coupled : bool
+        Whether the load changer's moving mass rides on the pan.
+
+    Returns
+    -------
+    BalanceParameters
+        The modified copy.
+    """
+    skip = (REST_POSITION,) + MASS_MATRIX_NAMES
+    out = params.with_mechanics(**{k: float(v) for k, v in values.items() if k not in skip})
+    if any(n in values for n in MASS_MATRIX_NAMES):
+        now = mass_matrix_entries(out.mechanics, load_mass_kg, load_changer_coupled)
+        wanted = [float(values.get(n, v)) for n, v in zip(MASS_MATRIX_NAMES, now)]
+        out = out.with_mechanics(**coordinates_for(out.mechanics, load_mass_kg,
+                                                   load_changer_coupled, wanted))
+    return out
+
+
 class BalanceGreyboxModel:
     """
     The recorded setpoints and the simulation of the balance model over them.
@@ -219,8 +319,7 @@ class BalanceGreyboxModel:
             The modified copy; a ``rest_position_m`` entry is turned into the ``F_off_N`` that
             gives that rest position under the first recorded setpoints.
         """
-        mech = {k: float(v) for k, v in values.items() if k != REST_POSITION}
-        params = self.params.with_mechanics(**mech)
+        params = with_values(self.params, values, self.load_mass_kg, self.load_changer_coupled)
         if REST_POSITION in values:
             force = offset_force_N(params, self.setpoints_V[0], self.load_mass_kg,
                                    self.load_changer_coupled, float(values[REST_POSITION]))
