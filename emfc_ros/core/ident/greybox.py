@@ -24,9 +24,10 @@ Scale of a parameter: ``spec.scale`` if given, else ``|initial|``, else half the
 when finite, else 1.
 
 Uncertainty, with ``J`` the Jacobian of the residual vector with respect to the free
-parameters at the optimum (``least_squares``' own Jacobian, or central differences with steps
-``1e-6 scale`` for pattern search; these extra simulations are counted in ``n_evaluations`` but
-not in ``optimizer_evaluations``):
+parameters at the optimum, by central differences with steps ``COVARIANCE_STEP * scale`` for
+both optimisers (``least_squares``' own forward-difference Jacobian is too coarse for it;
+these extra simulations are counted in ``n_evaluations`` but not in
+``optimizer_evaluations``):
 
 * ``covariance='white'``: ``Cov = s^2 (J^T J)^-1`` with ``s^2 = sum r^2 / (m - p)``. Right only
   for white residuals; output error with process noise is not white, and this covariance is
@@ -58,6 +59,14 @@ from emfc_ros.core.ident.metrics import fit_percent, input_correlation_test, whi
 from emfc_ros.core.ident.pattern_search import pattern_search, PatternSearchOptions
 
 METHODS = ('least_squares', 'pattern_search')
+#: Relative forward-difference step of ``least_squares``' Jacobian. Its default (the square
+#: root of the machine epsilon, 1.5e-8) is below the numerical noise of a long nonlinear
+#: simulation (rounding in some 10^5 RK4 steps, the static solve of the start), which then
+#: swamps the Jacobian columns of weakly determined parameters.
+DIFF_STEP = 1.0e-6
+#: Central-difference step of the Jacobian behind the covariance, relative to each parameter's
+#: scale: about the cube root of that noise, where truncation and rounding errors balance.
+COVARIANCE_STEP = 1.0e-5
 COVARIANCES = ('sandwich', 'white')
 #: DFT lines over which the residual periodogram is averaged in the sandwich covariance.
 SANDWICH_SMOOTHING_LINES = 3
@@ -433,8 +442,8 @@ def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
     if method == 'least_squares':
         res = optimize.least_squares(problem.residuals, theta0, bounds=(lower, upper),
                                      method='trf', x_scale=scales, max_nfev=max_nfev,
-                                     ftol=tolerance, xtol=tolerance)
-        theta, jac = res.x, res.jac
+                                     ftol=tolerance, xtol=tolerance, diff_step=DIFF_STEP)
+        theta, jac = res.x, None
         success, reason = bool(res.status > 0), str(res.message)
     else:
         def natural(x: np.ndarray) -> np.ndarray:
@@ -458,7 +467,8 @@ def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
     cov = np.full((k, k), np.nan)
     if uncertainty:
         if jac is None:
-            jac = _central_jacobian(problem.residuals, theta, 1e-6 * scales, lower, upper)
+            jac = _central_jacobian(problem.residuals, theta, COVARIANCE_STEP * scales, lower,
+                                    upper)
         jac = np.asarray(jac, dtype=float)
         h_inv = _inverse(jac.T @ jac)
         if covariance == 'white':

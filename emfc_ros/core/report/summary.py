@@ -97,12 +97,10 @@ def summary_markdown(result: Any, plots: Sequence[str] = (),
                   '| parameter | estimate | standard error | start | unit |',
                   '|---|---|---|---|---|']
         for name, p in g['parameters'].items():
-            se = p['standard_error']
+            se, start = p['standard_error'], p['initial']
             lines.append(f'| {name} | {p["value"]:.6g} | '
-                         f'{se:.2g} | {p["initial"]:.6g} | {p["unit"]} |'
-                         if se is not None else
-                         f'| {name} | {p["value"]:.6g} | n/a | {p["initial"]:.6g} | '
-                         f'{p["unit"]} |')
+                         f'{"n/a" if se is None else f"{se:.2g}"} | '
+                         f'{"derived" if start is None else f"{start:.6g}"} | {p["unit"]} |')
         lines += ['', '| section | fit [%] | rms error [nm] | residual whiteness | '
                   'residual-input uncorrelated |', '|---|---|---|---|---|']
         for s in g['sections']:
