@@ -296,18 +296,27 @@ def frequency_domain_stage(setting: Setting, channels: Mapping[str, np.ndarray],
         verdict.warnings.append('greybox: the responses show fewer than two modes; the '
                                 'frequency-domain fit starts from the configured values')
 
+    report('greybox', 0.05, f'frequency-domain fit of {positive}')
+    upper = {n: 1e3 * configured[n] for n in positive}
+    fit = balance_frf.fit_frfs(model, frfs, start, positive, upper=upper)
+    at = dict(start, **fit.values)
+
+    # Identifiability at the frequency-domain optimum, in variables relative to the configured
+    # values (a start that drifted along an undetermined direction must not look determined).
     def jacobian_of(free: Sequence[str]) -> np.ndarray:
         return relative_jacobian_columns(
-            lambda v: balance_frf.weighted_residuals(model, frfs, v), start, free)
+            lambda v: balance_frf.weighted_residuals(model, frfs, v), at, free)
 
-    choice = choose_free(jacobian_of, positive, start, may_fix=positive)
+    choice = choose_free(jacobian_of, positive, configured, may_fix=positive,
+                         prefer_fix=INERTIA_NAMES + MASS_MATRIX_NAMES)
     if not choice.free:
-        return start, None, choice
-    report('greybox', 0.05, f'frequency-domain fit of {list(choice.free)}')
+        return configured, None, choice
     fixed_now = {n: configured[n] for n in choice.fixed}
-    fit = balance_frf.fit_frfs(model, frfs, dict(start, **fixed_now), choice.free,
-                               upper={n: 1e3 * abs(start[n]) for n in choice.free})
-    out = dict(start, **fixed_now)
+    if fixed_now:
+        report('greybox', 0.08, f'frequency-domain fit of {list(choice.free)}')
+        fit = balance_frf.fit_frfs(model, frfs, dict(at, **fixed_now), choice.free,
+                                   upper=upper)
+    out = dict(at, **fixed_now)
     out.update(fit.values)
     return out, fit, choice
 

@@ -44,6 +44,8 @@ VARIANCE_SMOOTHING_LINES = 9
 #: Smallest relative std of a line used as a weight (the LPM's local polynomials and the hold
 #: compensation are good to about 0.1 %).
 RELATIVE_STD_FLOOR = 1.0e-3
+#: Weight of the start values in the feature start (per unit of natural logarithm).
+PRIOR_WEIGHT = 0.01
 #: Largest relative std of a line that counts in a mass-line level.
 MAX_LEVEL_RELATIVE_STD = 0.05
 
@@ -561,13 +563,18 @@ def feature_start(model: MechanicsFrfModel, frfs: Sequence[MeasuredFrf],
     names = tuple(names)
     target, weight = _feature_vector(feats)
     base = {k: float(v) for k, v in start.items()}
+    prior = np.log([base[n] for n in names])
 
     def residual(logs: np.ndarray) -> np.ndarray:
         vals = dict(base, **{n: float(np.exp(v)) for n, v in zip(names, logs)})
         got = _model_features(model, vals, feats, frfs)
+        # A weak pull towards the start values (a factor e costs as much as one feature off by
+        # PRIOR_WEIGHT of its tolerance) keeps a direction the features do not determine where
+        # it was instead of letting it drift to extremes; determined ones do not notice it.
+        pull = PRIOR_WEIGHT * (logs - prior)
         if got is None or got.size != target.size or not np.all(np.isfinite(got)):
-            return np.full(target.size, 1e3)
-        return (got - target) * weight
+            return np.concatenate((np.full(target.size, 1e3), pull))
+        return np.concatenate(((got - target) * weight, pull))
 
     best: Optional[Tuple[float, np.ndarray]] = None
     for mult in multipliers:
@@ -582,9 +589,9 @@ def feature_start(model: MechanicsFrfModel, frfs: Sequence[MeasuredFrf],
         cost = float(res.fun @ res.fun)
         if best is None or cost < best[0]:
             best = (cost, res.x)
-        if cost < target.size:     # every feature matched within its tolerance
+        if cost < target.size + len(names):     # every feature matched within its tolerance
             break
-    if best is None or best[0] >= 1e6 * target.size:
+    if best is None or best[0] >= 1e6 * (target.size + len(names)):
         raise IdentificationError('frequency-domain start: no parameter set reproduces two '
                                   'modes of the measured responses')
     return {n: float(np.exp(v)) for n, v in zip(names, best[1])}, best[0]

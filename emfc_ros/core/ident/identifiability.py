@@ -162,7 +162,8 @@ class FreeSetChoice:
 
 def choose_free(jacobian_of: Callable[[Sequence[str]], np.ndarray], names: Sequence[str],
                 magnitudes: Dict[str, float], may_fix: Sequence[str],
-                max_relative_uncertainty: float = MAX_RELATIVE_UNCERTAINTY) -> FreeSetChoice:
+                max_relative_uncertainty: float = MAX_RELATIVE_UNCERTAINTY,
+                prefer_fix: Sequence[str] = (), min_share: float = 0.1) -> FreeSetChoice:
     """
     Drop parameters until every direction of the rest is determined.
 
@@ -180,6 +181,12 @@ def choose_free(jacobian_of: Callable[[Sequence[str]], np.ndarray], names: Seque
         when poorly determined (their uncertainty will show it).
     max_relative_uncertainty : float
         Threshold of a determined direction.
+    prefer_fix : sequence of str
+        Parameters fixed first when they take part in the undetermined direction (with a
+        component of at least ``min_share``): those whose configured value is known best
+        (the masses, from a balance's drawings and weighing).
+    min_share : float
+        Smallest component of a preferred parameter in the direction.
 
     Returns
     -------
@@ -198,6 +205,8 @@ def choose_free(jacobian_of: Callable[[Sequence[str]], np.ndarray], names: Seque
             return FreeSetChoice(tuple(current), fixed, ana, first)
         v = np.abs(ana.directions[worst])
         order = [i for i in np.argsort(-v) if current[i] in may_fix]
+        preferred = [i for i in order if current[i] in prefer_fix and v[i] >= min_share]
+        order = preferred + [i for i in order if i not in preferred]
         if not order:
             return FreeSetChoice(tuple(current), fixed, ana, first)
         drop = current[order[0]]
