@@ -31,6 +31,7 @@ Steps (issue 12; ``docs/identification.md`` section 5):
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import functools
 import math
 from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
@@ -644,6 +645,23 @@ def check_masses(derived: Mapping[str, Derived], setting: Setting, relative_unce
             f'are; set greybox.mass_relative_uncertainty if the masses are known worse')
 
 
+def _fail_closed(fit: Callable[..., Tuple[Optional[BalanceGreyboxResult], Verdict]]
+                 ) -> Callable[..., Tuple[Optional[BalanceGreyboxResult], Verdict]]:
+    """Turn an error raised by the numbers (data the model cannot follow) into a failure."""
+    @functools.wraps(fit)
+    def wrapped(*args: Any, **kwargs: Any) -> Tuple[Optional[BalanceGreyboxResult], Verdict]:
+        try:
+            return fit(*args, **kwargs)
+        except (IdentificationError, ValueError, RuntimeError, ArithmeticError,
+                np.linalg.LinAlgError) as exc:
+            verdict = Verdict()
+            verdict.failures.append(f'greybox: the fit could not run on these data: {exc}')
+            return None, verdict
+
+    return wrapped
+
+
+@_fail_closed
 def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
                 sections: Sequence[Tuple[str, int, int]],
                 frf_jobs: Sequence[Tuple[str, int, int, Sequence[str]]],
@@ -682,23 +700,6 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
     verdict : Verdict
         Failures and warnings.
     """
-    try:
-        return _fit_balance(setting, channels, sections, frf_jobs, modes, anti_resonance, gcfg,
-                            band_Hz, hold, report)
-    except (IdentificationError, ValueError, RuntimeError, ArithmeticError,
-            np.linalg.LinAlgError) as exc:
-        verdict = Verdict()
-        verdict.failures.append(f'greybox: the fit could not run on these data: {exc}')
-        return None, verdict
-
-
-def _fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
-                 sections: Sequence[Tuple[str, int, int]],
-                 frf_jobs: Sequence[Tuple[str, int, int, Sequence[str]]],
-                 modes: Sequence[Tuple[float, float, float]],
-                 anti_resonance: Optional[Tuple[float, float, float]], gcfg: Any,
-                 band_Hz: Tuple[float, float], hold: str, report: Progress
-                 ) -> Tuple[Optional[BalanceGreyboxResult], Verdict]:
     verdict = Verdict()
     mech = setting.balance.mechanics
     requested = internal_names([n for n in gcfg.free if n != 'F_off_N'])
