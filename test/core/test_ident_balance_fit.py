@@ -155,14 +155,16 @@ def test_data_of_pure_noise_fail(recording):
     assert res.to_dict()['status']['success'] is False
 
 
-def test_a_sensor_gain_off_by_15_percent_fails_the_mass_check(recording):
+def test_a_sensor_gain_off_by_15_percent_fails(recording):
     channels = dict(recording.channels)
     channels['position_m'] = channels['position_m'] * 1.15
     res = identify(dict(channels, sample_rate_Hz=recording.sample_rate_Hz),
                    section_table(recording),
                    dict(options(recording), balance=TRUTH.to_mapping()))
     assert not res.success
-    assert any('mass matrix' in f for f in res.failures), res.failures
+    # either the free mass matrix contradicts the configured masses, or (where the short
+    # record does not determine the mass matrix to 5 % and it is fixed) the model cannot fit
+    assert any('mass matrix' in f or 'fits only' in f for f in res.failures), res.failures
 
 
 def test_frequency_domain_fit_alone_has_an_honest_chi_square(recording):

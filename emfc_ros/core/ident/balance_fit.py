@@ -44,6 +44,7 @@ from emfc_ros.core.ident.balance_greybox import (BalanceGreyboxModel, MASS_COORD
 from emfc_ros.core.ident.errors import IdentificationError
 from emfc_ros.core.ident.greybox import fit_greybox, GreyboxResult, ParameterSpec
 from emfc_ros.core.ident.identifiability import (choose_free, FreeSetChoice,
+                                                 MAX_RELATIVE_UNCERTAINTY,
                                                  relative_jacobian_columns)
 from emfc_ros.core.ident.noise_model import whitening_weights
 from emfc_ros.core.ident.pattern_search import PatternSearchOptions
@@ -73,6 +74,10 @@ TIME_DOMAIN_TOLERANCE = 1.0e-6
 #: inconsistent with the configured masses when its three entries are further from the
 #: configured ones than this (in units of the configured masses' relative uncertainty).
 MASS_CONSISTENCY_CHI2 = 16.27
+#: Chi-square difference within which two frequency-domain optima fit equally well.
+AMBIGUITY_CHI2 = 4.0
+#: Two optima further apart than this many standard uncertainties are different answers.
+AMBIGUITY_SIGMAS = 3.0
 #: A free parameter within this fraction of its scale from a bound counts as at the bound.
 BOUND_TOLERANCE = 1.0e-6
 
@@ -234,7 +239,8 @@ def frequency_domain_stage(setting: Setting, channels: Mapping[str, np.ndarray],
                            modes: Sequence[Tuple[float, float, float]],
                            anti_resonance: Optional[Tuple[float, float, float]],
                            names: Sequence[str], band_Hz: Tuple[float, float], hold: str,
-                           verdict: Verdict, report: Progress
+                           verdict: Verdict, report: Progress,
+                           threshold: float = MAX_RELATIVE_UNCERTAINTY
                            ) -> Tuple[Dict[str, float], Optional[balance_frf.FrfFit],
                                       Optional[FreeSetChoice]]:
     """
@@ -262,6 +268,10 @@ def frequency_domain_stage(setting: Setting, channels: Mapping[str, np.ndarray],
         Collects warnings.
     report : callable
         Progress.
+    threshold : float
+        Largest relative standard uncertainty of a direction the data determine: the
+        configured masses' own uncertainty, so that the data replace a mass only where they
+        know it better than the configuration does.
 
     Returns
     -------
@@ -297,29 +307,119 @@ def frequency_domain_stage(setting: Setting, channels: Mapping[str, np.ndarray],
         verdict.warnings.append('greybox: the responses show fewer than two modes; the '
                                 'frequency-domain fit starts from the configured values')
 
-    report('greybox', 0.05, f'frequency-domain fit of {positive}')
-    upper = {n: 1e3 * configured[n] for n in positive}
-    fit = balance_frf.fit_frfs(model, frfs, start, positive, upper=upper)
-    at = dict(start, **fit.values)
-
-    # Identifiability at the frequency-domain optimum, in variables relative to the configured
-    # values (a start that drifted along an undetermined direction must not look determined).
+    # Identifiability at the start (the feature start keeps directions the features do not
+    # determine at their configured values), in variables relative to the configured values.
     def jacobian_of(free: Sequence[str]) -> np.ndarray:
         return relative_jacobian_columns(
-            lambda v: balance_frf.weighted_residuals(model, frfs, v), at, free)
+            lambda v: balance_frf.weighted_residuals(model, frfs, v), start, free)
 
-    choice = choose_free(jacobian_of, positive, configured, may_fix=positive,
+    # Only masses and inertias are fixed when the data do not determine them (the configured
+    # masses are prior knowledge); a poorly determined stiffness or damping stays free and
+    # its uncertainty says so (the time-domain fit also sees below the responses' band).
+    masses = [n for n in positive if n in INERTIA_NAMES + MASS_MATRIX_NAMES]
+    choice = choose_free(jacobian_of, positive, configured, may_fix=masses,
+                         max_relative_uncertainty=threshold,
                          prefer_fix=INERTIA_NAMES + MASS_MATRIX_NAMES)
+    partly = [n for n in MASS_MATRIX_NAMES if n in choice.fixed]
+    if partly and any(n in choice.free for n in MASS_MATRIX_NAMES):
+        # The mass matrix is identified as a whole or taken from the configured masses: with
+        # one entry fixed the others bend the stiffnesses along a curved valley (measured on
+        # a 5 s coil chirp: c2 24 % off at 4 of its standard uncertainties).
+        reason = (f'fixed with {partly[0]}: the data do not determine the whole mass matrix '
+                  f'({choice.fixed[partly[0]]})')
+        rest = [n for n in positive if n not in MASS_MATRIX_NAMES]
+        again = choose_free(jacobian_of, rest, configured,
+                            may_fix=[n for n in rest if n in masses],
+                            max_relative_uncertainty=threshold)
+        fixed = dict(choice.fixed)
+        fixed.update({n: reason for n in MASS_MATRIX_NAMES if n not in fixed})
+        fixed.update(again.fixed)
+        choice = FreeSetChoice(again.free, fixed, again.analysis, choice.initial_analysis)
     if not choice.free:
         return configured, None, choice
     fixed_now = {n: configured[n] for n in choice.fixed}
-    if fixed_now:
-        report('greybox', 0.08, f'frequency-domain fit of {list(choice.free)}')
-        fit = balance_frf.fit_frfs(model, frfs, dict(at, **fixed_now), choice.free,
-                                   upper=upper)
+    at = dict(start, **fixed_now)
+    report('greybox', 0.05, f'frequency-domain fit of {list(choice.free)}')
+    fit = balance_frf.fit_frfs(model, frfs, at, choice.free,
+                               upper={n: 1e3 * configured[n] for n in choice.free})
+    fit = probe_ambiguity(model, frfs, fit, at, configured, verdict, report)
     out = dict(at, **fixed_now)
     out.update(fit.values)
     return out, fit, choice
+
+
+def probe_ambiguity(model: balance_frf.MechanicsFrfModel, frfs: Sequence[Any],
+                    fit: balance_frf.FrfFit, values: Dict[str, float],
+                    configured: Mapping[str, float], verdict: Verdict, report: Progress
+                    ) -> balance_frf.FrfFit:
+    """
+    Look for a second optimum along the least determined directions.
+
+    A collocated response alone (e.g. a coil chirp without a pan-force section) can fit two
+    different parameter sets equally well (measured: c2 +24 % with the same chi-square as the
+    truth). The frequency-domain fit is restarted from points moved along the two least
+    determined directions of its covariance (by 20 % or five standard uncertainties, whichever
+    is larger, in relative units); an optimum that fits as well (chi-square within
+    :data:`AMBIGUITY_CHI2`) but lies more than :data:`AMBIGUITY_SIGMAS` standard uncertainties
+    away is a failure; one that fits clearly better replaces the first.
+
+    Parameters
+    ----------
+    model : MechanicsFrfModel
+        The model.
+    frfs : sequence of MeasuredFrf
+        The data.
+    fit : FrfFit
+        The fit.
+    values : dict of str to float
+        All parameter values the fit started from (fixed ones included).
+    configured : mapping of str to float
+        Configured values (bounds).
+    verdict : Verdict
+        Collects the failure.
+    report : callable
+        Progress.
+
+    Returns
+    -------
+    FrfFit
+        The best fit found.
+    """
+    names = list(fit.names)
+    x = np.array([fit.values[n] for n in names])
+    se = np.sqrt(np.maximum(np.diag(fit.covariance), 0.0))
+    rel_cov = fit.covariance / np.outer(x, x)
+    w, v = np.linalg.eigh(rel_cov)
+    dof = max(fit.n_lines * 2 - len(names), 1)
+    cost = fit.chi2_reduced * dof
+    upper = {n: 1e3 * configured[n] for n in names}
+    best = fit
+    for k in range(1, min(2, len(names)) + 1):
+        direction = v[:, -k]
+        step = max(0.2, 5.0 * math.sqrt(max(w[-k], 0.0)))
+        for sign in (1.0, -1.0):
+            moved = x * np.exp(np.clip(sign * step * direction, -1.0, 1.0))
+            start = dict(values, **dict(zip(names, moved)))
+            report('greybox', 0.07, 'frequency-domain fit from a second start')
+            try:
+                other = balance_frf.fit_frfs(model, frfs, start, names, upper=upper)
+            except (IdentificationError, ValueError, np.linalg.LinAlgError):
+                continue
+            other_cost = other.chi2_reduced * dof
+            y = np.array([other.values[n] for n in names])
+            apart = float(np.max(np.abs(y - x) / np.where(se > 0.0, se, np.inf)))
+            if other_cost < cost - AMBIGUITY_CHI2:
+                best, cost, x = other, other_cost, y
+            elif other_cost <= cost + AMBIGUITY_CHI2 and apart > AMBIGUITY_SIGMAS:
+                shown = ', '.join(f'{n} {a:.4g} or {b:.4g}' for n, a, b in zip(names, x, y)
+                                  if abs(b - a) > AMBIGUITY_SIGMAS * se[names.index(n)])
+                verdict.failures.append(
+                    f'greybox: the data fit two parameter sets equally well ({shown}; '
+                    f'chi-square {cost:.1f} and {other_cost:.1f}): this experiment cannot '
+                    f'tell them apart; add a pan-force section or fix the masses '
+                    f'(greybox.free without J1c_kgm2, m3_kg, J2c_kgm2)')
+                return best
+    return best
 
 
 def offset_start(model: BalanceGreyboxModel, values: Dict[str, float],
@@ -712,9 +812,11 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
     start = {n: configured_value(setting, n) for n in requested}
     fd, choice = None, None
     if gcfg.initialise_from_frf and dynamic:
+        threshold = min(MAX_RELATIVE_UNCERTAINTY, gcfg.mass_relative_uncertainty or
+                        MAX_RELATIVE_UNCERTAINTY)
         solved, fd, choice = frequency_domain_stage(setting, channels, frf_jobs, modes,
                                                     anti_resonance, dynamic, band_Hz, hold,
-                                                    verdict, report)
+                                                    verdict, report, threshold)
         start.update(solved)
     free = [n for n in requested if choice is None or n not in choice.fixed]
     if choice is not None:

@@ -177,8 +177,9 @@ def choose_free(jacobian_of: Callable[[Sequence[str]], np.ndarray], names: Seque
     magnitudes : dict of str to float
         Typical magnitudes.
     may_fix : sequence of str
-        Parameters that may be fixed (at their configured values); the others stay free even
-        when poorly determined (their uncertainty will show it).
+        Parameters that may be fixed (at their configured values), when they take part in an
+        undetermined direction with a component of at least ``min_share``; the others stay
+        free even when poorly determined (their uncertainty will show it).
     max_relative_uncertainty : float
         Threshold of a determined direction.
     prefer_fix : sequence of str
@@ -186,7 +187,7 @@ def choose_free(jacobian_of: Callable[[Sequence[str]], np.ndarray], names: Seque
         component of at least ``min_share``): those whose configured value is known best
         (the masses, from a balance's drawings and weighing).
     min_share : float
-        Smallest component of a preferred parameter in the direction.
+        Smallest component of a parameter in the direction for it to be fixed.
 
     Returns
     -------
@@ -200,16 +201,21 @@ def choose_free(jacobian_of: Callable[[Sequence[str]], np.ndarray], names: Seque
         ana = analyse(jacobian_of(current), current, [magnitudes[n] for n in current],
                       max_relative_uncertainty)
         first = first or ana
-        worst = int(np.argmax(ana.relative_uncertainty))
-        if ana.relative_uncertainty[worst] <= max_relative_uncertainty or len(current) <= 1:
+        # the least determined direction that a parameter allowed to be fixed takes part in
+        candidates = []
+        for d in np.argsort(-ana.relative_uncertainty):
+            if ana.relative_uncertainty[d] <= max_relative_uncertainty or len(current) <= 1:
+                break
+            v = np.abs(ana.directions[d])
+            order = [i for i in np.argsort(-v) if current[i] in may_fix and v[i] >= min_share]
+            if order:
+                preferred = [i for i in order if current[i] in prefer_fix]
+                candidates = [(d, (preferred + [i for i in order if i not in preferred])[0])]
+                break
+        if not candidates:
             return FreeSetChoice(tuple(current), fixed, ana, first)
-        v = np.abs(ana.directions[worst])
-        order = [i for i in np.argsort(-v) if current[i] in may_fix]
-        preferred = [i for i in order if current[i] in prefer_fix and v[i] >= min_share]
-        order = preferred + [i for i in order if i not in preferred]
-        if not order:
-            return FreeSetChoice(tuple(current), fixed, ana, first)
-        drop = current[order[0]]
+        worst, index = candidates[0]
+        drop = current[index]
         fixed[drop] = (f'not separable from the other parameters: the combination '
                        f'{ana.combination(worst)} is determined only to '
                        f'{100 * min(ana.relative_uncertainty[worst], 1e6):.3g} %')
