@@ -13,9 +13,9 @@ import pytest
 import yaml
 
 from emfc_ros.core.ident import balance_frf
+from emfc_ros.core.ident.balance_derived import modal_summary
 from emfc_ros.core.ident.balance_experiment import (section_table, simulate_experiment,
                                                     time_scaled_mapping)
-from emfc_ros.core.ident.balance_fit import modal_summary
 from emfc_ros.core.ident.balance_greybox import offset_force_N, rest_state
 from emfc_ros.core.ident.pipeline import identify
 from emfc_ros.core.model.linear import linearise

@@ -10,8 +10,8 @@ formula ``s^2 (u^T u)^-1`` is several times too small. The fits run through
 import numpy as np
 from scipy import linalg, signal
 
-from emfc_ros.core.ident.greybox import (DataSection, fit_greybox, line_score_covariance,
-                                         ParameterSpec, score_covariance)
+from emfc_ros.core.ident.covariance import line_score_covariance, score_covariance
+from emfc_ros.core.ident.greybox import DataSection, fit_greybox, ParameterSpec
 from emfc_ros.core.ident.noise_model import noise_spectrum, whitening_weights
 
 N = 4000

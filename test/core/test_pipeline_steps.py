@@ -5,13 +5,11 @@ import pytest
 from scipy import signal
 
 from emfc_ros.core.errors import ConfigError
-from emfc_ros.core.ident.balance_greybox import BalanceGreyboxModel, match_modes
+from emfc_ros.core.ident.balance_greybox import BalanceGreyboxModel
 from emfc_ros.core.ident.errors import IdentificationError
 from emfc_ros.core.ident.local_polynomial import local_polynomial_frf
 from emfc_ros.core.ident.pipeline import find_plateaus, hold_factor, identify
 from emfc_ros.core.ident.pipeline_config import IdentificationConfig
-from emfc_ros.core.model.linear import linearise
-from emfc_ros.core.model.load import loaded
 from emfc_ros.core.model.parameters import BalanceParameters
 
 FS = 1000.0
@@ -125,17 +123,6 @@ def test_missing_channel_and_bad_sections():
         identify(rec, [('x', 0, 10 ** 6)])
     res = identify(rec, sections, {'greybox': {'enabled': False}})
     assert any('coil_chirp' in w for w in res.warnings)
-
-
-def test_match_modes_recovers_stiffness_and_damping():
-    truth = BalanceParameters()
-    lin = linearise(loaded(truth.mechanics, 0.1, True))
-    modes = [(p.frequency_Hz, p.damping_ratio) for p in lin.poles() if p.s_rad_per_s.imag > 0]
-    start = truth.with_mechanics(c1_Nm_per_rad=0.13, c2_Nm_per_rad=17.0,
-                                 d1_Nms_per_rad=6e-4, d2_Nms_per_rad=1e-4)
-    got = match_modes(start, modes, 0.1, True)
-    for name in ('c1_Nm_per_rad', 'c2_Nm_per_rad', 'd1_Nms_per_rad', 'd2_Nms_per_rad'):
-        np.testing.assert_allclose(got[name], getattr(truth.mechanics, name), rtol=1e-5)
 
 
 def test_greybox_model_slices_match_full_simulation():

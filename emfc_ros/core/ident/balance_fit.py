@@ -22,15 +22,17 @@ Steps (issue 12; ``docs/identification.md`` section 5):
 4. **Derived numbers with uncertainty**: ``F_off_N``, the mass-matrix entries (the inertia
    combinations the data determine), the modes and coil anti-resonance of the fitted model, by
    first-order propagation of the covariance.
-5. **Verdict**: failures (a section fit below :data:`FIT_FAILURE_PERCENT`, the optimiser that
-   never left its start, a parameter at a bound, no usable start) and warnings (a fit below
-   :data:`FIT_WARNING_PERCENT`, time- and frequency-domain estimates that disagree by more than
-   :data:`CONSISTENCY_SIGMAS` combined standard uncertainties).
+5. **Verdict** (:mod:`~emfc_ros.core.ident.balance_verdict`): failures (a section fit below
+   its threshold, the optimiser that never left its start, a parameter at a bound, a mass
+   matrix that contradicts the configured masses, two answers that fit equally well, data the
+   fit cannot run on) and warnings.
+
+The result types and their plain-data form are in :mod:`~emfc_ros.core.ident.balance_result`,
+the derived numbers in :mod:`~emfc_ros.core.ident.balance_derived`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 import functools
 import math
 from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
@@ -38,49 +40,33 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 import numpy as np
 
 from emfc_ros.core.ident import balance_frf
+from emfc_ros.core.ident.balance_derived import derived_quantities
 from emfc_ros.core.ident.balance_greybox import (BalanceGreyboxModel, MASS_COORDINATES,
                                                  mass_matrix_entries, MASS_MATRIX_NAMES,
                                                  REST_POSITION, unit_of, with_values)
+from emfc_ros.core.ident.balance_result import BalanceGreyboxResult, Setting, Verdict
+from emfc_ros.core.ident.balance_verdict import check, check_masses
 from emfc_ros.core.ident.errors import IdentificationError
-from emfc_ros.core.ident.greybox import fit_greybox, GreyboxResult, ParameterSpec
+from emfc_ros.core.ident.greybox import fit_greybox, ParameterSpec
 from emfc_ros.core.ident.identifiability import (choose_free, FreeSetChoice,
                                                  MAX_RELATIVE_UNCERTAINTY,
                                                  relative_jacobian_columns)
 from emfc_ros.core.ident.noise_model import whitening_weights
 from emfc_ros.core.ident.pattern_search import PatternSearchOptions
-from emfc_ros.core.model.linear import linearise, LinearModel
+from emfc_ros.core.model.linear import linearise
 from emfc_ros.core.model.load import loaded
-from emfc_ros.core.model.mechanics import mass_matrix
-from emfc_ros.core.model.parameters import BalanceParameters
 
 Progress = Callable[[str, float, str], None]
 
-#: A section whose simulation-error fit is below this [%] makes the identification fail. A
-#: right model reproduces every section of the shipped trajectory to better than 99 % at the
-#: documented noise (``bench/bench_ident_offnominal.py``); 90 % means a residual of a tenth of
-#: the signal, far outside what noise explains: the model is wrong or the fit is lost.
-FIT_FAILURE_PERCENT = 90.0
-#: Below this [%] a section fit is reported as a warning.
-FIT_WARNING_PERCENT = 97.0
-#: Time- and frequency-domain estimates further apart than this many combined standard
-#: uncertainties are reported (model error: the two weigh the data differently).
-CONSISTENCY_SIGMAS = 5.0
 #: ``ftol``/``xtol`` of the time-domain fit. It starts next to the optimum (the frequency-domain
 #: fit), so a relative cost change of 1e-6 (0.4 on a noise-weighted cost of about 4e5 on the
 #: shipped trajectory) leaves the parameters within about 0.1 standard uncertainty of the
 #: 1e-8 result (measured) at half the simulations.
 TIME_DOMAIN_TOLERANCE = 1.0e-6
-#: 99.9 % quantile of chi-square with 3 degrees of freedom: the identified mass matrix is
-#: inconsistent with the configured masses when its three entries are further from the
-#: configured ones than this (in units of the configured masses' relative uncertainty).
-MASS_CONSISTENCY_CHI2 = 16.27
 #: Chi-square difference within which two frequency-domain optima fit equally well.
 AMBIGUITY_CHI2 = 4.0
 #: Two optima further apart than this many standard uncertainties are different answers.
 AMBIGUITY_SIGMAS = 3.0
-#: A free parameter within this fraction of its scale from a bound counts as at the bound.
-BOUND_TOLERANCE = 1.0e-6
-
 #: Masses and inertias: the data determine the mass matrix, these are its coordinates.
 INERTIA_NAMES = ('J1c_kgm2', 'm3_kg', 'J2c_kgm2', 'm1_kg', 'm2_kg', 'mp_kg',
                  'load_changer_mass_kg')
@@ -131,107 +117,6 @@ def internal_names(requested: Sequence[str]) -> List[str]:
     if not all(c in requested for c in MASS_COORDINATES):
         return list(requested)
     return [n for n in requested if n not in MASS_COORDINATES] + list(MASS_MATRIX_NAMES)
-
-
-@dataclass(frozen=True)
-class Derived:
-    """
-    A number computed from the fitted parameters, with its standard uncertainty.
-
-    Attributes
-    ----------
-    value : float
-        The value.
-    standard_uncertainty : float
-        First-order propagation of the fit's covariance.
-    unit : str
-        SI unit.
-    """
-
-    value: float
-    standard_uncertainty: float
-    unit: str
-
-
-@dataclass
-class BalanceGreyboxResult:
-    """
-    The grey-box fit of the balance model.
-
-    Attributes
-    ----------
-    fit : GreyboxResult
-        The time-domain fit: free parameters (``rest_position_m`` standing for ``F_off_N``),
-        standard errors from the sandwich covariance, correlation, section fits, counts.
-    initial : dict of str to float
-        Start values of the free parameters (from the frequency-domain stage).
-    linear_model : LinearModel
-        Linearisation of the fitted model in the experiment's configuration.
-    parameters : dict of str to float
-        Every mechanical parameter of the fitted model (``F_off_N`` included).
-    derived : dict of str to Derived
-        ``F_off_N``, mass-matrix entries, modes and the coil anti-resonance with uncertainty.
-    frequency_domain : FrfFit or None
-        The frequency-domain fit (start and cross-check).
-    identifiability : FreeSetChoice or None
-        Fisher-information analysis and what it fixed.
-    sources : dict of str to str
-        Where every mechanical parameter's value comes from.
-    time_s : dict of str to ndarray
-        Per section: time from the section start [s].
-    measured_m, simulated_m : dict of str to ndarray
-        Per section: measured and simulated position [m].
-    """
-
-    fit: GreyboxResult
-    initial: Dict[str, float]
-    linear_model: LinearModel
-    parameters: Dict[str, float] = field(default_factory=dict)
-    derived: Dict[str, Derived] = field(default_factory=dict)
-    frequency_domain: Optional[balance_frf.FrfFit] = None
-    identifiability: Optional[FreeSetChoice] = None
-    sources: Dict[str, str] = field(default_factory=dict)
-    time_s: Dict[str, np.ndarray] = field(default_factory=dict)
-    measured_m: Dict[str, np.ndarray] = field(default_factory=dict)
-    simulated_m: Dict[str, np.ndarray] = field(default_factory=dict)
-
-
-@dataclass
-class Verdict:
-    """
-    What went wrong (failures) and what the user should know (warnings).
-
-    Attributes
-    ----------
-    failures, warnings : list of str
-        Messages, each starting with ``greybox:``.
-    """
-
-    failures: List[str] = field(default_factory=list)
-    warnings: List[str] = field(default_factory=list)
-
-
-@dataclass(frozen=True)
-class Setting:
-    """
-    The experiment's configuration for the fit.
-
-    Attributes
-    ----------
-    balance : BalanceParameters
-        Configured balance (characteristics, fixed masses, lengths, start values).
-    load_mass_kg : float
-        Mass on the pan [kg].
-    load_changer_coupled : bool
-        Whether the load changer's moving mass rode on the pan.
-    sample_rate_Hz : float
-        Sample rate [Hz].
-    """
-
-    balance: BalanceParameters
-    load_mass_kg: float
-    load_changer_coupled: bool
-    sample_rate_Hz: float
 
 
 def frequency_domain_stage(setting: Setting, channels: Mapping[str, np.ndarray],
@@ -541,210 +426,6 @@ def time_domain_specs(start: Mapping[str, float], free: Sequence[str],
     return specs
 
 
-def propagate(fun: Callable[[Dict[str, float]], np.ndarray], values: Dict[str, float],
-              names: Sequence[str], covariance: np.ndarray, steps: Mapping[str, float]
-              ) -> Tuple[np.ndarray, np.ndarray]:
-    """
-    Value and standard uncertainty of a vector function by first-order propagation.
-
-    Parameters
-    ----------
-    fun : callable
-        ``fun(values) -> ndarray``.
-    values : dict of str to float
-        The estimate.
-    names : sequence of str
-        Free parameters (covariance order).
-    covariance : ndarray
-        Their covariance.
-    steps : mapping of str to float
-        Finite-difference step per parameter.
-
-    Returns
-    -------
-    value, std : ndarray
-        ``fun(values)`` and the standard uncertainties.
-    """
-    f0 = np.asarray(fun(values), dtype=float)
-    grads = []
-    for n in names:
-        h = float(steps[n])
-        up = np.asarray(fun(dict(values, **{n: values[n] + h})), dtype=float)
-        down = np.asarray(fun(dict(values, **{n: values[n] - h})), dtype=float)
-        grads.append((up - down) / (2.0 * h))
-    g = np.column_stack(grads) if grads else np.zeros((f0.size, 0))
-    cov = np.asarray(covariance, dtype=float)
-    if not np.all(np.isfinite(cov)):
-        return f0, np.full(f0.size, np.nan)
-    var = np.einsum('ij,jk,ik->i', g, cov, g)
-    return f0, np.sqrt(np.maximum(var, 0.0))
-
-
-def modal_summary(lin: LinearModel) -> np.ndarray:
-    """
-    Low and high mode frequency and damping, coil anti-resonance frequency and damping.
-
-    Parameters
-    ----------
-    lin : LinearModel
-        The linearised model.
-
-    Returns
-    -------
-    ndarray, shape (6,)
-        ``[f1_Hz, zeta1, f2_Hz, zeta2, fa_Hz, zeta_a]`` (NaN where absent).
-    """
-    poles = sorted((p.frequency_Hz, p.damping_ratio) for p in lin.poles()
-                   if p.s_rad_per_s.imag > 0.0)
-    zeros = sorted((z.frequency_Hz, z.damping_ratio) for z in lin.zeros('coil')
-                   if z.s_rad_per_s.imag > 0.0)
-    out = np.full(6, np.nan)
-    if len(poles) >= 2:
-        out[:4] = [poles[0][0], poles[0][1], poles[-1][0], poles[-1][1]]
-    if zeros:
-        out[4:] = zeros[-1]
-    return out
-
-
-MODE_KEYS = (('low_mode_frequency_Hz', 'Hz'), ('low_mode_damping_ratio', ''),
-             ('high_mode_frequency_Hz', 'Hz'), ('high_mode_damping_ratio', ''),
-             ('coil_anti_resonance_frequency_Hz', 'Hz'), ('coil_anti_resonance_damping_ratio', ''))
-MASS_KEYS = (('mass_matrix_11_kgm2', 'kg m^2'), ('mass_matrix_12_kgm2', 'kg m^2'),
-             ('mass_matrix_22_kgm2', 'kg m^2'))
-
-
-def derived_quantities(model: BalanceGreyboxModel, fit: GreyboxResult,
-                       setting: Setting) -> Dict[str, Derived]:
-    """
-    ``F_off_N``, mass-matrix entries, modes and anti-resonance with uncertainties.
-
-    Parameters
-    ----------
-    model : BalanceGreyboxModel
-        The time-domain model.
-    fit : GreyboxResult
-        The fit.
-    setting : Setting
-        The configuration.
-
-    Returns
-    -------
-    dict of str to Derived
-        By name (units in the names).
-    """
-    names = list(fit.free_names)
-    values = {n: fit.parameters[n] for n in names}
-    steps = {n: 1e-5 * (abs(values[n]) or 1.0) if n != REST_POSITION else 1e-9 for n in names}
-    cov = fit.covariance if fit.covariance is not None else np.full((len(names),) * 2, np.nan)
-
-    def mechanics(v: Dict[str, float]) -> Any:
-        return loaded(model.balance(v).mechanics, setting.load_mass_kg,
-                      setting.load_changer_coupled)
-
-    def numbers(v: Dict[str, float]) -> np.ndarray:
-        own = model.balance(v).mechanics
-        mech = mechanics(v)
-        m = mass_matrix(np.zeros(2), mech)
-        return np.concatenate(([own.F_off_N, m[0, 0], m[0, 1], m[1, 1]],
-                               [getattr(own, n) for n in MASS_COORDINATES],
-                               modal_summary(linearise(mech))))
-
-    value, std = propagate(numbers, values, names, cov, steps)
-    keys = (('F_off_N', 'N'),) + MASS_KEYS + tuple((n, unit_of(n)) for n in MASS_COORDINATES) \
-        + MODE_KEYS
-    return {k: Derived(float(v), float(s), u) for (k, u), v, s in zip(keys, value, std)
-            if math.isfinite(v)}
-
-
-def check(fit: GreyboxResult, specs: Sequence[ParameterSpec], fd: Optional[Any],
-          verdict: Verdict) -> None:
-    """
-    Add the failures and warnings of a time-domain fit to a verdict.
-
-    Parameters
-    ----------
-    fit : GreyboxResult
-        The time-domain fit.
-    specs : sequence of ParameterSpec
-        Its parameter specs (bounds).
-    fd : FrfFit or None
-        The frequency-domain fit for the consistency check.
-    verdict : Verdict
-        Collects the messages.
-    """
-    for sec in fit.sections:
-        worst = float(np.min(sec.fit_percent))
-        if worst < FIT_FAILURE_PERCENT:
-            verdict.failures.append(f'greybox: section {sec.name!r} fits only {worst:.1f} % '
-                                    f'(a usable model fits at least {FIT_FAILURE_PERCENT:g} %)')
-        elif worst < FIT_WARNING_PERCENT:
-            verdict.warnings.append(f'greybox: section {sec.name!r} fits only {worst:.2f} %')
-    if not fit.moved():
-        verdict.failures.append('greybox: the optimiser never left its start '
-                                f'({fit.exit_reason})')
-    elif not fit.success:
-        verdict.failures.append(f'greybox: the optimiser did not converge ({fit.exit_reason})')
-    for spec in specs:
-        v = fit.parameters[spec.name]
-        tol = BOUND_TOLERANCE * spec.resolved_scale()
-        if v - spec.lower <= tol or spec.upper - v <= tol:
-            verdict.failures.append(f'greybox: {spec.name} = {v:.6g} {spec.unit} ended at its '
-                                    f'bound [{spec.lower:.6g}, {spec.upper:.6g}]: the model '
-                                    f'cannot reproduce the data inside its range')
-    if fd is None:
-        return
-    se_fd = fd.standard_errors()
-    for n in fd.names:
-        if n not in fit.free_names:
-            continue
-        a, b = fit.parameters[n], fd.values[n]
-        s = math.hypot(fit.standard_errors.get(n, 0.0), se_fd[n])
-        if s > 0.0 and abs(a - b) > CONSISTENCY_SIGMAS * s:
-            verdict.warnings.append(
-                f'greybox: {n} from the time domain ({a:.6g}) and the frequency domain '
-                f'({b:.6g}) differ by {abs(a - b) / s:.1f} combined standard uncertainties: '
-                f'model error (characteristics, nonlinearity) weighs on the estimate')
-
-
-def check_masses(derived: Mapping[str, Derived], setting: Setting, relative_uncertainty: float,
-                 verdict: Verdict) -> None:
-    """
-    Fail when the identified mass matrix contradicts the configured masses.
-
-    The data fix the mass matrix only up to the scale of the sensor and actuator
-    characteristics (a sensor sensitivity 10 % off scales every stiffness, damping and
-    inertia by 1/1.1 and fits as well). The configured masses, known to
-    ``relative_uncertainty``, are the check: ``sum ((M_id - M_cfg) / (u M_cfg))^2`` over the
-    three entries above :data:`MASS_CONSISTENCY_CHI2` is a failure.
-
-    Parameters
-    ----------
-    derived : mapping of str to Derived
-        With the ``mass_matrix_*`` entries.
-    setting : Setting
-        The configured balance and load.
-    relative_uncertainty : float
-        Relative standard uncertainty of the configured mass-matrix entries (0 disables).
-    verdict : Verdict
-        Collects the failure.
-    """
-    if not relative_uncertainty > 0.0 or not all(k in derived for k, _ in MASS_KEYS):
-        return
-    m = mass_matrix(np.zeros(2), loaded(setting.balance.mechanics, setting.load_mass_kg,
-                                        setting.load_changer_coupled))
-    configured = (m[0, 0], m[0, 1], m[1, 1])
-    rel = [derived[k].value / c - 1.0 for (k, _), c in zip(MASS_KEYS, configured) if c != 0.0]
-    chi2 = float(sum((r / relative_uncertainty) ** 2 for r in rel))
-    if chi2 > MASS_CONSISTENCY_CHI2:
-        shown = ', '.join(f'{100 * r:+.1f} %' for r in rel)
-        verdict.failures.append(
-            f'greybox: the identified mass matrix differs from the configured masses by '
-            f'{shown} (chi-square {chi2:.1f} with the masses known to '
-            f'{100 * relative_uncertainty:g} %): a sensor or actuator characteristic is off '
-            f'(every stiffness, damping and inertia scales with it), or the configured masses '
-            f'are; set greybox.mass_relative_uncertainty if the masses are known worse')
-
-
 def _fail_closed(fit: Callable[..., Tuple[Optional[BalanceGreyboxResult], Verdict]]
                  ) -> Callable[..., Tuple[Optional[BalanceGreyboxResult], Verdict]]:
     """Turn an error raised by the numbers (data the model cannot follow) into a failure."""
@@ -892,135 +573,3 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
         out.measured_m[name] = np.asarray(channels['position_m'][sl])
         out.simulated_m[name] = record[sl]
     return out, verdict
-
-
-#: What each mass-matrix coordinate is identified together with (the data see only the entries).
-CONDITIONAL = {
-    'J1c_kgm2': 'identified through M11 = J1c + m1 (r1^2 + h1^2) + (mp + pan load + coupled '
-                'load changer) l1^2 + (m2 + m3) l2^2: right only if the fixed masses and the '
-                'pan load are',
-    'm3_kg': 'identified through M12 = l2 (m3 l3 + m2 r2) and M22: right only if m2, r2 and '
-             'the lengths are',
-    'J2c_kgm2': 'identified through M22 = J2c + m2 (r2^2 + h2^2) + m3 l3^2: right only if m2 '
-                'and the lengths are',
-    'F_off_N': 'tied to the weights of the identified masses (the static moment balance)',
-}
-
-
-def parameter_table(g: BalanceGreyboxResult) -> List[Dict[str, Any]]:
-    """
-    Every mechanical parameter of the fitted model: identified or fixed, value and source.
-
-    Parameters
-    ----------
-    g : BalanceGreyboxResult
-        The result.
-
-    Returns
-    -------
-    list of dict
-        ``name, value, unit, status, source, standard_uncertainty`` (None when fixed), and a
-        ``note`` for identified parameters that hold only together with fixed ones.
-    """
-    rows = []
-    for name, value in g.parameters.items():
-        through = {'F_off_N': (REST_POSITION,)}
-        through.update({n: MASS_MATRIX_NAMES for n in MASS_COORDINATES})
-        identified = name in g.fit.free_names or (
-            name in through and all(t in g.fit.free_names for t in through[name]))
-        if identified and name in through and name in g.derived:
-            se: Optional[float] = g.derived[name].standard_uncertainty
-        else:
-            se = g.fit.standard_errors.get(name) if identified else None
-        row = {'name': name, 'value': value, 'unit': unit_of(name),
-               'status': 'identified' if identified else 'fixed',
-               'source': g.sources.get(name, 'configuration (balance)'),
-               'standard_uncertainty': se}
-        if identified and name in CONDITIONAL:
-            row['note'] = CONDITIONAL[name]
-        rows.append(row)
-    return rows
-
-
-def root_dict(root: Any) -> dict:
-    """
-    A pole or zero as plain data.
-
-    Parameters
-    ----------
-    root : Root
-        The root.
-
-    Returns
-    -------
-    dict
-        Real and imaginary part [rad/s], frequency [Hz] (signed for real roots), damping.
-    """
-    return {'real_rad_per_s': float(root.s_rad_per_s.real),
-            'imag_rad_per_s': float(abs(root.s_rad_per_s.imag)),
-            'frequency_Hz': root.frequency_Hz, 'signed_frequency_Hz': root.signed_frequency_Hz,
-            'damping_ratio': root.damping_ratio}
-
-
-def greybox_dict(g: Optional[BalanceGreyboxResult]) -> Optional[dict]:
-    """
-    The grey-box result as plain data (units in the keys or next to the values).
-
-    Parameters
-    ----------
-    g : BalanceGreyboxResult or None
-        The result.
-
-    Returns
-    -------
-    dict or None
-        Fit, free parameters with standard uncertainties, derived quantities, identifiability,
-        the frequency-domain fit, section fits and the linearised model.
-    """
-    if g is None:
-        return None
-    fit = g.fit
-    free = list(fit.free_names)
-    params = {name: {'value': fit.parameters[name],
-                     'standard_error': fit.standard_errors[name],
-                     'initial': g.initial.get(name), 'unit': unit_of(name)}
-              for name in free}
-    if 'F_off_N' in g.derived and REST_POSITION in free:
-        d = g.derived['F_off_N']
-        params['F_off_N'] = {'value': d.value, 'standard_error': d.standard_uncertainty,
-                             'initial': None, 'unit': 'N',
-                             'note': f'from {REST_POSITION} through the static equilibrium'}
-    lin = g.linear_model
-    fd = g.frequency_domain
-    choice = g.identifiability
-    out = {
-        'method': fit.method, 'success': fit.success, 'exit_reason': fit.exit_reason,
-        'cost': fit.cost, 'optimizer_evaluations': fit.optimizer_evaluations,
-        'n_evaluations': fit.n_evaluations, 'time_s': fit.time_s,
-        'covariance_method': fit.covariance_method,
-        'parameters': params,
-        'derived': {k: {'value': v.value, 'standard_uncertainty': v.standard_uncertainty,
-                        'unit': v.unit} for k, v in g.derived.items()},
-        'correlation': {'names': free, 'matrix': np.asarray(fit.correlation).tolist()},
-        'sections': [{'name': s.name, 'fit_percent': float(np.min(s.fit_percent)),
-                      'rms_error_m': float(np.max(s.rms_error)),
-                      'whiteness_fraction': s.whiteness_fraction,
-                      'input_correlation_fraction': s.input_correlation_fraction}
-                     for s in fit.sections],
-        'linearised_model': {
-            'poles': [root_dict(p) for p in lin.poles()],
-            'zeros_coil': [root_dict(z) for z in lin.zeros('coil')],
-            'zeros_pan': [root_dict(z) for z in lin.zeros('pan')],
-            'static_gain_coil_m_per_N': lin.static_gain_m_per_N('coil'),
-            'static_gain_pan_m_per_N': lin.static_gain_m_per_N('pan'),
-        },
-        'frequency_domain_fit': None if fd is None else {
-            'parameters': {n: {'value': fd.values[n], 'standard_error': se, 'unit': unit_of(n)}
-                           for n, se in fd.standard_errors().items()},
-            'chi2_reduced': fd.chi2_reduced, 'n_lines': fd.n_lines, 'success': fd.success},
-        'identifiability': None if choice is None else {
-            'requested': choice.initial_analysis.to_dict(),
-            'free': choice.analysis.to_dict(),
-            'fixed': dict(choice.fixed)},
-    }
-    return out

@@ -31,7 +31,8 @@ import warnings
 import numpy as np
 
 from emfc_ros.core.ident import balance_fit
-from emfc_ros.core.ident.balance_fit import BalanceGreyboxResult
+from emfc_ros.core.ident.balance_result import (BalanceGreyboxResult, greybox_dict,
+                                                parameter_table, Setting)
 from emfc_ros.core.ident.errors import IdentificationError
 from emfc_ros.core.ident.frf import estimate_frf, FrequencyResponseData
 from emfc_ros.core.ident.local_polynomial import local_polynomial_frf
@@ -227,8 +228,8 @@ class IdentificationResult:
                               'load_changer_coupled': self.config.load_changer_coupled},
             'frequency_responses': [_frf_dict(r) for r in self.frfs],
             'static_characteristics': _static_dict(self.static),
-            'greybox': balance_fit.greybox_dict(self.greybox),
-            'model_parameters': (balance_fit.parameter_table(self.greybox)
+            'greybox': greybox_dict(self.greybox),
+            'model_parameters': (parameter_table(self.greybox)
                                  if self.greybox is not None else None),
             'warnings': list(self.warnings),
             'timings_s': dict(self.timings_s),
@@ -640,9 +641,8 @@ def _greybox_step(result: IdentificationResult, channels: Mapping[str, np.ndarra
                                   (cfg.frf.two_input_sections, ['coil', 'pan']))
             for n in group if n in by_name]
     modes, anti = modal_features(result)
-    setting = balance_fit.Setting(cfg.balance.with_mechanics(**gcfg.initial),
-                                  cfg.load_mass_kg, cfg.load_changer_coupled,
-                                  result.sample_rate_Hz)
+    setting = Setting(cfg.balance.with_mechanics(**gcfg.initial), cfg.load_mass_kg,
+                      cfg.load_changer_coupled, result.sample_rate_Hz)
     out, verdict = balance_fit.fit_balance(
         setting, channels, [(s.name, s.first_sample_index, s.n_samples) for s in chosen],
         jobs, modes, anti, gcfg, (cfg.frf.frequency_min_Hz, cfg.frf.frequency_max_Hz),

@@ -1,0 +1,130 @@
+"""
+Numbers derived from the balance's fitted parameters, with first-order uncertainties.
+
+``F_off_N``, the mass-matrix entries, the coordinates J1c, m3 and J2c, both modes and the coil
+anti-resonance of the linearised fitted model (:func:`derived_quantities`), by propagating the
+fit's covariance through finite differences (:func:`propagate`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Callable, Dict, Mapping, Sequence, Tuple
+
+import numpy as np
+
+from emfc_ros.core.ident.balance_greybox import (BalanceGreyboxModel, MASS_COORDINATES,
+                                                 REST_POSITION, unit_of)
+from emfc_ros.core.ident.balance_result import Derived, MASS_KEYS, MODE_KEYS, Setting
+from emfc_ros.core.ident.greybox import GreyboxResult
+from emfc_ros.core.model.linear import linearise, LinearModel
+from emfc_ros.core.model.load import loaded
+from emfc_ros.core.model.mechanics import mass_matrix
+
+
+def propagate(fun: Callable[[Dict[str, float]], np.ndarray], values: Dict[str, float],
+              names: Sequence[str], covariance: np.ndarray, steps: Mapping[str, float]
+              ) -> Tuple[np.ndarray, np.ndarray]:
+    """
+    Value and standard uncertainty of a vector function by first-order propagation.
+
+    Parameters
+    ----------
+    fun : callable
+        ``fun(values) -> ndarray``.
+    values : dict of str to float
+        The estimate.
+    names : sequence of str
+        Free parameters (covariance order).
+    covariance : ndarray
+        Their covariance.
+    steps : mapping of str to float
+        Finite-difference step per parameter.
+
+    Returns
+    -------
+    value, std : ndarray
+        ``fun(values)`` and the standard uncertainties.
+    """
+    f0 = np.asarray(fun(values), dtype=float)
+    grads = []
+    for n in names:
+        h = float(steps[n])
+        up = np.asarray(fun(dict(values, **{n: values[n] + h})), dtype=float)
+        down = np.asarray(fun(dict(values, **{n: values[n] - h})), dtype=float)
+        grads.append((up - down) / (2.0 * h))
+    g = np.column_stack(grads) if grads else np.zeros((f0.size, 0))
+    cov = np.asarray(covariance, dtype=float)
+    if not np.all(np.isfinite(cov)):
+        return f0, np.full(f0.size, np.nan)
+    var = np.einsum('ij,jk,ik->i', g, cov, g)
+    return f0, np.sqrt(np.maximum(var, 0.0))
+
+
+def modal_summary(lin: LinearModel) -> np.ndarray:
+    """
+    Low and high mode frequency and damping, coil anti-resonance frequency and damping.
+
+    Parameters
+    ----------
+    lin : LinearModel
+        The linearised model.
+
+    Returns
+    -------
+    ndarray, shape (6,)
+        ``[f1_Hz, zeta1, f2_Hz, zeta2, fa_Hz, zeta_a]`` (NaN where absent).
+    """
+    poles = sorted((p.frequency_Hz, p.damping_ratio) for p in lin.poles()
+                   if p.s_rad_per_s.imag > 0.0)
+    zeros = sorted((z.frequency_Hz, z.damping_ratio) for z in lin.zeros('coil')
+                   if z.s_rad_per_s.imag > 0.0)
+    out = np.full(6, np.nan)
+    if len(poles) >= 2:
+        out[:4] = [poles[0][0], poles[0][1], poles[-1][0], poles[-1][1]]
+    if zeros:
+        out[4:] = zeros[-1]
+    return out
+
+
+def derived_quantities(model: BalanceGreyboxModel, fit: GreyboxResult,
+                       setting: Setting) -> Dict[str, Derived]:
+    """
+    ``F_off_N``, mass-matrix entries, modes and anti-resonance with uncertainties.
+
+    Parameters
+    ----------
+    model : BalanceGreyboxModel
+        The time-domain model.
+    fit : GreyboxResult
+        The fit.
+    setting : Setting
+        The configuration.
+
+    Returns
+    -------
+    dict of str to Derived
+        By name (units in the names).
+    """
+    names = list(fit.free_names)
+    values = {n: fit.parameters[n] for n in names}
+    steps = {n: 1e-5 * (abs(values[n]) or 1.0) if n != REST_POSITION else 1e-9 for n in names}
+    cov = fit.covariance if fit.covariance is not None else np.full((len(names),) * 2, np.nan)
+
+    def mechanics(v: Dict[str, float]) -> Any:
+        return loaded(model.balance(v).mechanics, setting.load_mass_kg,
+                      setting.load_changer_coupled)
+
+    def numbers(v: Dict[str, float]) -> np.ndarray:
+        own = model.balance(v).mechanics
+        mech = mechanics(v)
+        m = mass_matrix(np.zeros(2), mech)
+        return np.concatenate(([own.F_off_N, m[0, 0], m[0, 1], m[1, 1]],
+                               [getattr(own, n) for n in MASS_COORDINATES],
+                               modal_summary(linearise(mech))))
+
+    value, std = propagate(numbers, values, names, cov, steps)
+    keys = (('F_off_N', 'N'),) + MASS_KEYS + tuple((n, unit_of(n)) for n in MASS_COORDINATES) \
+        + MODE_KEYS
+    return {k: Derived(float(v), float(s), u) for (k, u), v, s in zip(keys, value, std)
+            if math.isfinite(v)}

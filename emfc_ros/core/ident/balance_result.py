@@ -1,0 +1,263 @@
+"""
+What the balance's grey-box identification returns, and the same as plain data.
+
+:class:`BalanceGreyboxResult` (fit, derived numbers with uncertainty, identifiability, where
+each parameter comes from), :class:`Derived`, :class:`Verdict`, :class:`Setting`;
+:func:`parameter_table` (every model parameter: identified or fixed, value, source) and
+:func:`greybox_dict` for ``results.yaml``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Dict, List, Optional
+
+import numpy as np
+
+from emfc_ros.core.ident.balance_frf import FrfFit
+from emfc_ros.core.ident.balance_greybox import (MASS_COORDINATES, MASS_MATRIX_NAMES,
+                                                 REST_POSITION, unit_of)
+from emfc_ros.core.ident.greybox import GreyboxResult
+from emfc_ros.core.ident.identifiability import FreeSetChoice
+from emfc_ros.core.model.linear import LinearModel
+from emfc_ros.core.model.parameters import BalanceParameters
+
+#: Keys of the derived modal numbers and their units.
+MODE_KEYS = (('low_mode_frequency_Hz', 'Hz'), ('low_mode_damping_ratio', ''),
+             ('high_mode_frequency_Hz', 'Hz'), ('high_mode_damping_ratio', ''),
+             ('coil_anti_resonance_frequency_Hz', 'Hz'), ('coil_anti_resonance_damping_ratio', ''))
+MASS_KEYS = (('mass_matrix_11_kgm2', 'kg m^2'), ('mass_matrix_12_kgm2', 'kg m^2'),
+             ('mass_matrix_22_kgm2', 'kg m^2'))
+
+
+@dataclass(frozen=True)
+class Derived:
+    """
+    A number computed from the fitted parameters, with its standard uncertainty.
+
+    Attributes
+    ----------
+    value : float
+        The value.
+    standard_uncertainty : float
+        First-order propagation of the fit's covariance.
+    unit : str
+        SI unit.
+    """
+
+    value: float
+    standard_uncertainty: float
+    unit: str
+
+
+@dataclass
+class BalanceGreyboxResult:
+    """
+    The grey-box fit of the balance model.
+
+    Attributes
+    ----------
+    fit : GreyboxResult
+        The time-domain fit: free parameters (``rest_position_m`` standing for ``F_off_N``),
+        standard errors from the sandwich covariance, correlation, section fits, counts.
+    initial : dict of str to float
+        Start values of the free parameters (from the frequency-domain stage).
+    linear_model : LinearModel
+        Linearisation of the fitted model in the experiment's configuration.
+    parameters : dict of str to float
+        Every mechanical parameter of the fitted model (``F_off_N`` included).
+    derived : dict of str to Derived
+        ``F_off_N``, mass-matrix entries, modes and the coil anti-resonance with uncertainty.
+    frequency_domain : FrfFit or None
+        The frequency-domain fit (start and cross-check).
+    identifiability : FreeSetChoice or None
+        Fisher-information analysis and what it fixed.
+    sources : dict of str to str
+        Where every mechanical parameter's value comes from.
+    time_s : dict of str to ndarray
+        Per section: time from the section start [s].
+    measured_m, simulated_m : dict of str to ndarray
+        Per section: measured and simulated position [m].
+    """
+
+    fit: GreyboxResult
+    initial: Dict[str, float]
+    linear_model: LinearModel
+    parameters: Dict[str, float] = field(default_factory=dict)
+    derived: Dict[str, Derived] = field(default_factory=dict)
+    frequency_domain: Optional[FrfFit] = None
+    identifiability: Optional[FreeSetChoice] = None
+    sources: Dict[str, str] = field(default_factory=dict)
+    time_s: Dict[str, np.ndarray] = field(default_factory=dict)
+    measured_m: Dict[str, np.ndarray] = field(default_factory=dict)
+    simulated_m: Dict[str, np.ndarray] = field(default_factory=dict)
+
+
+@dataclass
+class Verdict:
+    """
+    What went wrong (failures) and what the user should know (warnings).
+
+    Attributes
+    ----------
+    failures, warnings : list of str
+        Messages, each starting with ``greybox:``.
+    """
+
+    failures: List[str] = field(default_factory=list)
+    warnings: List[str] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class Setting:
+    """
+    The experiment's configuration for the fit.
+
+    Attributes
+    ----------
+    balance : BalanceParameters
+        Configured balance (characteristics, fixed masses, lengths, start values).
+    load_mass_kg : float
+        Mass on the pan [kg].
+    load_changer_coupled : bool
+        Whether the load changer's moving mass rode on the pan.
+    sample_rate_Hz : float
+        Sample rate [Hz].
+    """
+
+    balance: BalanceParameters
+    load_mass_kg: float
+    load_changer_coupled: bool
+    sample_rate_Hz: float
+
+
+#: What each mass-matrix coordinate is identified together with (the data see only the entries).
+CONDITIONAL = {
+    'J1c_kgm2': 'identified through M11 = J1c + m1 (r1^2 + h1^2) + (mp + pan load + coupled '
+                'load changer) l1^2 + (m2 + m3) l2^2: right only if the fixed masses and the '
+                'pan load are',
+    'm3_kg': 'identified through M12 = l2 (m3 l3 + m2 r2) and M22: right only if m2, r2 and '
+             'the lengths are',
+    'J2c_kgm2': 'identified through M22 = J2c + m2 (r2^2 + h2^2) + m3 l3^2: right only if m2 '
+                'and the lengths are',
+    'F_off_N': 'tied to the weights of the identified masses (the static moment balance)',
+}
+
+
+def parameter_table(g: BalanceGreyboxResult) -> List[Dict[str, Any]]:
+    """
+    Every mechanical parameter of the fitted model: identified or fixed, value and source.
+
+    Parameters
+    ----------
+    g : BalanceGreyboxResult
+        The result.
+
+    Returns
+    -------
+    list of dict
+        ``name, value, unit, status, source, standard_uncertainty`` (None when fixed), and a
+        ``note`` for identified parameters that hold only together with fixed ones.
+    """
+    rows = []
+    for name, value in g.parameters.items():
+        through = {'F_off_N': (REST_POSITION,)}
+        through.update({n: MASS_MATRIX_NAMES for n in MASS_COORDINATES})
+        identified = name in g.fit.free_names or (
+            name in through and all(t in g.fit.free_names for t in through[name]))
+        if identified and name in through and name in g.derived:
+            se: Optional[float] = g.derived[name].standard_uncertainty
+        else:
+            se = g.fit.standard_errors.get(name) if identified else None
+        row = {'name': name, 'value': value, 'unit': unit_of(name),
+               'status': 'identified' if identified else 'fixed',
+               'source': g.sources.get(name, 'configuration (balance)'),
+               'standard_uncertainty': se}
+        if identified and name in CONDITIONAL:
+            row['note'] = CONDITIONAL[name]
+        rows.append(row)
+    return rows
+
+
+def root_dict(root: Any) -> dict:
+    """
+    A pole or zero as plain data.
+
+    Parameters
+    ----------
+    root : Root
+        The root.
+
+    Returns
+    -------
+    dict
+        Real and imaginary part [rad/s], frequency [Hz] (signed for real roots), damping.
+    """
+    return {'real_rad_per_s': float(root.s_rad_per_s.real),
+            'imag_rad_per_s': float(abs(root.s_rad_per_s.imag)),
+            'frequency_Hz': root.frequency_Hz, 'signed_frequency_Hz': root.signed_frequency_Hz,
+            'damping_ratio': root.damping_ratio}
+
+
+def greybox_dict(g: Optional[BalanceGreyboxResult]) -> Optional[dict]:
+    """
+    The grey-box result as plain data (units in the keys or next to the values).
+
+    Parameters
+    ----------
+    g : BalanceGreyboxResult or None
+        The result.
+
+    Returns
+    -------
+    dict or None
+        Fit, free parameters with standard uncertainties, derived quantities, identifiability,
+        the frequency-domain fit, section fits and the linearised model.
+    """
+    if g is None:
+        return None
+    fit = g.fit
+    free = list(fit.free_names)
+    params = {name: {'value': fit.parameters[name],
+                     'standard_error': fit.standard_errors[name],
+                     'initial': g.initial.get(name), 'unit': unit_of(name)}
+              for name in free}
+    if 'F_off_N' in g.derived and REST_POSITION in free:
+        d = g.derived['F_off_N']
+        params['F_off_N'] = {'value': d.value, 'standard_error': d.standard_uncertainty,
+                             'initial': None, 'unit': 'N',
+                             'note': f'from {REST_POSITION} through the static equilibrium'}
+    lin = g.linear_model
+    fd = g.frequency_domain
+    choice = g.identifiability
+    out = {
+        'method': fit.method, 'success': fit.success, 'exit_reason': fit.exit_reason,
+        'cost': fit.cost, 'optimizer_evaluations': fit.optimizer_evaluations,
+        'n_evaluations': fit.n_evaluations, 'time_s': fit.time_s,
+        'covariance_method': fit.covariance_method,
+        'parameters': params,
+        'derived': {k: {'value': v.value, 'standard_uncertainty': v.standard_uncertainty,
+                        'unit': v.unit} for k, v in g.derived.items()},
+        'correlation': {'names': free, 'matrix': np.asarray(fit.correlation).tolist()},
+        'sections': [{'name': s.name, 'fit_percent': float(np.min(s.fit_percent)),
+                      'rms_error_m': float(np.max(s.rms_error)),
+                      'whiteness_fraction': s.whiteness_fraction,
+                      'input_correlation_fraction': s.input_correlation_fraction}
+                     for s in fit.sections],
+        'linearised_model': {
+            'poles': [root_dict(p) for p in lin.poles()],
+            'zeros_coil': [root_dict(z) for z in lin.zeros('coil')],
+            'zeros_pan': [root_dict(z) for z in lin.zeros('pan')],
+            'static_gain_coil_m_per_N': lin.static_gain_m_per_N('coil'),
+            'static_gain_pan_m_per_N': lin.static_gain_m_per_N('pan'),
+        },
+        'frequency_domain_fit': None if fd is None else {
+            'parameters': {n: {'value': fd.values[n], 'standard_error': se, 'unit': unit_of(n)}
+                           for n, se in fd.standard_errors().items()},
+            'chi2_reduced': fd.chi2_reduced, 'n_lines': fd.n_lines, 'success': fd.success},
+        'identifiability': None if choice is None else {
+            'requested': choice.initial_analysis.to_dict(),
+            'free': choice.analysis.to_dict(),
+            'fixed': dict(choice.fixed)},
+    }
+    return out
