@@ -24,6 +24,8 @@ the load changer coupled, and is identified knowing only the pan load and the co
 
     .venv/bin/python bench/bench_ident_offnominal.py --json bench/results/ident_offnominal.json
     .venv/bin/python bench/bench_ident_offnominal.py --quick --jobs 1      # 3 draws, 5 reps
+
+``--jobs 0`` runs every task in the main process (for a debugger or a profiler).
 """
 
 from __future__ import annotations
@@ -433,7 +435,8 @@ def main() -> None:
     parser.add_argument('--draws', type=int, default=None, help='draws (default 20)')
     parser.add_argument('--reps', type=int, default=None,
                         help='noise repetitions for coverage (default 100)')
-    parser.add_argument('--jobs', type=int, default=2, help='worker processes (default 2)')
+    parser.add_argument('--jobs', type=int, default=2,
+                        help='worker processes (default 2; 0: everything in this process)')
     parser.add_argument('--quick', action='store_true', help='3 draws, 5 repetitions')
     parser.add_argument('--spread', type=float, default=0.10)
     parser.add_argument('--json', default=None, help='write the results to this file')
@@ -450,7 +453,7 @@ def main() -> None:
               for noise in BENCH_NOISE_SEEDS[:n_reps]]
     start = time.perf_counter()
     rows = []
-    if args.jobs <= 1:
+    if args.jobs <= 0:
         results = map(_call, tasks)
         pool = None
     else:
