@@ -87,22 +87,18 @@ def target_of(name: str) -> Optional[float]:
     return None
 
 
-def _std_key(entry: Dict[str, Any]) -> Optional[str]:
-    for key, value in entry.items():
-        low = key.lower()
-        if ('std' in low or 'uncertainty' in low) and 'hz' in low and \
-                isinstance(value, (int, float)):
-            return key
-    return None
+#: Where the grey-box result reports each mode (``to_dict()['greybox']['derived']``).
+DERIVED_MODES = {'low_mode_Hz': 'low_mode_frequency_Hz', 'high_mode_Hz': 'high_mode_frequency_Hz',
+                 'anti_resonance_Hz': 'coil_anti_resonance_frequency_Hz'}
 
 
 def reported_modes(greybox: Optional[Dict[str, Any]]) -> Optional[Dict[str, Tuple[float, float]]]:
     """
     Return the grey-box modes with their standard uncertainties, when the result reports them.
 
-    Reads ``result.to_dict()['greybox']['modes']`` (a list of entries with ``frequency_Hz``
-    and a ``..._std_Hz`` or ``..._uncertainty_Hz`` key, or a mapping of such lists); the
-    lowest and highest resonance and the first anti-resonance are kept.
+    Reads ``result.to_dict()['greybox']['derived']`` (``value`` and ``standard_uncertainty``
+    of ``low_mode_frequency_Hz``, ``high_mode_frequency_Hz`` and
+    ``coil_anti_resonance_frequency_Hz``).
 
     Parameters
     ----------
@@ -114,25 +110,13 @@ def reported_modes(greybox: Optional[Dict[str, Any]]) -> Optional[Dict[str, Tupl
     dict or None
         ``{'low_mode_Hz': (value, std), ...}`` or None when not reported.
     """
-    modes = (greybox or {}).get('modes')
-    if not modes:
-        return None
-    groups = modes if isinstance(modes, dict) else {'resonances': modes}
+    derived = (greybox or {}).get('derived') or {}
     out = {}
-    for group, entries in groups.items():
-        if not isinstance(entries, list):
-            continue
-        got = []
-        for e in entries:
-            if isinstance(e, dict) and 'frequency_Hz' in e and _std_key(e):
-                got.append((float(e['frequency_Hz']), float(e[_std_key(e)])))
-        got.sort()
-        if not got:
-            continue
-        if 'anti' in group or 'zero' in group:
-            out['anti_resonance_Hz'] = got[0]
-        else:
-            out['low_mode_Hz'], out['high_mode_Hz'] = got[0], got[-1]
+    for key, name in DERIVED_MODES.items():
+        entry = derived.get(name)
+        if entry and entry.get('value') is not None and \
+                entry.get('standard_uncertainty') is not None:
+            out[key] = (float(entry['value']), float(entry['standard_uncertainty']))
     return out or None
 
 
