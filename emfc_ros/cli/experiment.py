@@ -137,6 +137,37 @@ def bridge_parameters(plan: RunPlan, balance_path: Path, load_kg: float,
     return params
 
 
+def bag_custom_data(plan: RunPlan, load_kg: float, coupled: bool) -> dict:
+    """
+    What the bag must carry so that ``emfc-identify BAG`` reproduces the run's identification.
+
+    Parameters
+    ----------
+    plan : RunPlan
+        The plan.
+    load_kg : float
+        Mass on the pan [kg] (declared by the plan, or the balancing mass pieces).
+    coupled : bool
+        Whether the load changer's moving mass rides on the pan.
+
+    Returns
+    -------
+    dict
+        ``emfc_ros.identification_options`` (the plan's ``identification`` mapping without
+        ``enabled``) and ``emfc_ros.plant_configuration`` (pan load, coupling, source).
+    """
+    device = 'bridge' if plan.target == 'bridge' else 'simulator'
+    declared = getattr(plan, device).load_mass_kg
+    source = (f'run plan run.{device}.load_mass_kg' if declared is not None else
+              f'run plan run.{device}.load_mass_kg: balance (the mass pieces that hold the '
+              f'lever at 0 with 0 V on the coil, from the balance file)')
+    return {'emfc_ros.identification_options': {
+                k: v for k, v in plan.identification.items() if k != 'enabled'},
+            'emfc_ros.plant_configuration': {
+                'load_mass_kg': float(load_kg), 'load_changer_coupled': bool(coupled),
+                'source': source}}
+
+
 def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
     """
     Bring up the nodes, play the experiment, record it; return what happened.
@@ -238,7 +269,9 @@ def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
             Parameter('max_bag_duration_s', value=float(plan.recording.max_bag_duration_s)),
             Parameter('discovery_period_s', value=0.1),
             Parameter('autostart', value=False),
-            Parameter('experiment_description', value=experiment_path.read_text())])
+            Parameter('experiment_description', value=experiment_path.read_text()),
+            Parameter('custom_data', value=yaml.safe_dump(
+                bag_custom_data(plan, load_kg, coupled), sort_keys=False))])
         nodes.append(recorder)
         pacing = plan.bridge.pacing if on_bridge else 'consumer'
         generator = SignalGeneratorNode(namespace=ns, parameter_overrides=[
@@ -509,13 +542,10 @@ def _run_pipeline(plan: RunPlan, info: dict, streams: dict, out: Path,
     from emfc_ros.core.ident.from_bag import identify_bag
 
     phases.start('identify')
-    options = {k: v for k, v in plan.identification.items() if k != 'enabled'}
-    if plan.target == 'bridge':
-        # What was on the pan is known to the plan, not to the device: tell the model.
-        options.setdefault('load_mass_kg', float(info['load_mass_kg']))
-        options.setdefault('load_changer_coupled', bool(info['load_changer_coupled']))
+    # The options and the pan load come from the bag (the recorder stored them), exactly as
+    # `emfc-identify BAG` takes them, so that both give the same result.
     try:
-        result, _ = identify_bag(Path(info['bag']), options, namespace=plan.namespace,
+        result, _ = identify_bag(Path(info['bag']), None, namespace=plan.namespace,
                                  progress=_pipeline_progress, streams=streams)
     except IdentificationError as exc:
         info['identification_error'] = str(exc)
@@ -525,6 +555,8 @@ def _run_pipeline(plan: RunPlan, info: dict, streams: dict, out: Path,
     from emfc_ros.core.report import write_report
     folder = out / 'identification'
     write_report(result, folder)
+    if not result.success:
+        info['identification_error'] = '; '.join(result.failures)
     return [f'Identification results, plots and summary: `{folder}/` (`results.yaml`, '
             '`summary.md`).', ''] + (folder / 'summary.md').read_text().splitlines()
 
@@ -598,8 +630,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     (out / 'summary.md').write_text('\n'.join(summary) + '\n')
     print('\n'.join(summary))
     if 'identification_error' in info:
-        print(f'emfc-experiment: identification failed: {info["identification_error"]}',
-              file=sys.stderr)
+        print(f'emfc-experiment: identification failed: {info["identification_error"]} '
+              f'(bag and report kept in {out})', file=sys.stderr)
         return 1
     return 0
 

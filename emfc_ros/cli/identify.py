@@ -5,6 +5,11 @@ Reads the measurement stream and the experiment's section table from the bag, ru
 identification pipeline (frequency responses with coherence and uncertainty, transfer
 function and modal fit, static characteristics, grey-box fit of the physical parameters)
 and writes ``results.yaml``, plots and ``summary.md`` to the output folder.
+
+The options stored in the bag by the run plan are used (``--options`` overrides them key by
+key), and the pan load comes from the bag; a bag that does not say what was on the pan needs
+``--load-mass-kg``. Exit codes: 0 identified, 1 the identification failed (the report says
+why, and is written), 2 bad arguments, an unreadable bag or an unknown pan load.
 """
 
 from __future__ import annotations
@@ -46,6 +51,11 @@ def main(argv: Optional[List[str]] = None) -> int:
                              'docs/identification_results.md)')
     parser.add_argument('--namespace', default=None,
                         help='namespace of the streams when the bag holds several')
+    parser.add_argument('--load-mass-kg', type=float, default=None,
+                        help='mass on the pan during the experiment [kg] (overrides the bag)')
+    parser.add_argument('--load-changer-coupled', choices=('true', 'false'), default=None,
+                        help="whether the load changer's moving mass rode on the pan "
+                             '(overrides the bag)')
     args = parser.parse_args(argv)
     bag = Path(args.bag)
     if not (bag / 'metadata.yaml').is_file():
@@ -62,19 +72,38 @@ def main(argv: Optional[List[str]] = None) -> int:
         if not isinstance(options, dict):
             print(f'emfc-identify: {args.options} must hold a mapping', file=sys.stderr)
             return 2
+    if args.load_mass_kg is not None:
+        if not (args.load_mass_kg >= 0.0 and args.load_mass_kg < 100.0):
+            print(f'emfc-identify: --load-mass-kg must be from 0 to 100 kg, got '
+                  f'{args.load_mass_kg}', file=sys.stderr)
+            return 2
+        options['load_mass_kg'] = args.load_mass_kg
+    if args.load_changer_coupled is not None:
+        options['load_changer_coupled'] = args.load_changer_coupled == 'true'
     out = Path(args.out) if args.out else bag.with_name(bag.name + '_identification')
-    from emfc_ros.core.ident.from_bag import identify_bag
+    from emfc_ros.core.ident.from_bag import identify_bag, PlantConfigurationError
     from emfc_ros.core.report import write_report
     t0 = time.monotonic()
     try:
         result, info = identify_bag(bag, options, args.namespace, progress=_progress)
-        write_report(result, out)
+    except PlantConfigurationError as exc:
+        print(f'emfc-identify: {exc}', file=sys.stderr)
+        return 2
     except (ValueError, OSError, KeyError) as exc:
         print(f'emfc-identify: {exc}', file=sys.stderr)
+        return 1
+    try:
+        write_report(result, out)
+    except (ValueError, OSError) as exc:
+        print(f'emfc-identify: cannot write the report to {out}: {exc}', file=sys.stderr)
         return 1
     print(f'identified {info["samples"]} samples of {info["namespace"]}/measurements in '
           f'{time.monotonic() - t0:.1f} s; results in {out}/')
     print((out / 'summary.md').read_text())
+    if not result.success:
+        print('emfc-identify: the identification FAILED: ' + '; '.join(result.failures),
+              file=sys.stderr)
+        return 1
     return 0
 
 

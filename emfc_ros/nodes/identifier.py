@@ -5,8 +5,9 @@ Topics (relative to the node namespace): ``measurements`` and ``measurements/des
 (in, accumulated between ``~/start_accumulating`` and ``~/identify``),
 ``excitation/description`` (in, latched: the experiment's section table), ``~/progress``
 (``std_msgs/String``, out: JSON with step, fraction, message), ``~/result``
-(``std_msgs/String``, out, latched: JSON with the output folder, key figures and warnings),
-``/diagnostics``.
+(``std_msgs/String``, out, latched: JSON with ``ok`` (false when the identification failed
+or could not run), the output folder, ``failures``, ``warnings`` or ``error``),
+``/diagnostics`` (WARN with the failure while the last identification failed).
 
 Services (``std_srvs/Trigger``): ``~/identify_bag`` (the bag named by the ``bag``
 parameter), ``~/start_accumulating`` (buffer live measurement blocks from now on; start it
@@ -248,9 +249,15 @@ class IdentifierNode(Node):
         try:
             result = run(self._options())
             write_report(result, out)
-            doc = {'ok': True, 'output': str(out), 'wall_time_s': time.monotonic() - t0,
+            doc = {'ok': result.success, 'output': str(out),
+                   'wall_time_s': time.monotonic() - t0, 'failures': list(result.failures),
                    'warnings': list(result.warnings)}
-            self.get_logger().info(f'identification written to {out}')
+            if result.success:
+                self._last_error = ''
+                self.get_logger().info(f'identification written to {out}')
+            else:
+                self._last_error = 'identification failed: ' + '; '.join(result.failures)
+                self.get_logger().error(f'{self._last_error} (report in {out})')
         except (ValueError, OSError, KeyError) as exc:
             doc = {'ok': False, 'output': str(out), 'error': str(exc)}
             self._last_error = str(exc)

@@ -75,6 +75,10 @@ PARAMETERS = {
     'experiment_description': ('', 'experiment configuration as YAML text, stored in the '
                                    "bag's custom_data 'emfc_ros.experiment'; empty: the "
                                    'latest <ns>/excitation/description message recorded'),
+    'custom_data': ('', "YAML mapping of extra entries for the bag's custom_data (key: text "
+                        'or mapping, a mapping stored as YAML text), written when recording '
+                        'starts; the experiment runner stores the identification options and '
+                        'the plant configuration (pan load) here'),
     'subscription_depth': (1000, 'history depth of the recording subscriptions [messages], '
                                  '1 to 100000'),
     'max_queue_messages': (100000, 'bound of the writer queue [messages], 10 to 10000000; '
@@ -94,6 +98,37 @@ LIMITS = {'max_bag_size_B': (0, 2 ** 62), 'max_bag_duration_s': (0.0, 1e9),
 FIXED_WHILE_RECORDING = ('output', 'topics', 'max_bag_size_B', 'max_bag_duration_s',
                          'flush_period_s', 'subscription_depth', 'max_queue_messages',
                          'max_queue_B')
+
+
+def custom_entries(text: str) -> Dict[str, str]:
+    """
+    The ``custom_data`` parameter as key to text.
+
+    Parameters
+    ----------
+    text : str
+        YAML mapping (empty: none).
+
+    Returns
+    -------
+    dict of str to str
+        Mappings and lists dumped as YAML text.
+
+    Raises
+    ------
+    ValueError
+        If the text is not a YAML mapping with string keys.
+    """
+    if not text.strip():
+        return {}
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ValueError(f'custom_data must be a YAML mapping: {exc}') from None
+    if not isinstance(doc, dict) or not all(isinstance(k, str) for k in doc):
+        raise ValueError('custom_data must be a YAML mapping with string keys')
+    return {k: v if isinstance(v, str) else yaml.safe_dump(v, sort_keys=False)
+            for k, v in doc.items()}
 
 
 def _msg_class(msgtype: str):
@@ -288,10 +323,15 @@ class RecorderNode(Node):
                     return SetParametersResult(
                         successful=False,
                         reason=f'{p.name} must be {what} from {lo} to {hi}, got {p.value!r}')
-            elif p.name in ('output', 'experiment_description') and \
+            elif p.name in ('output', 'experiment_description', 'custom_data') and \
                     p.type_ != Parameter.Type.STRING:
                 return SetParametersResult(successful=False,
                                            reason=f'{p.name} must be a string')
+            elif p.name == 'custom_data':
+                try:
+                    custom_entries(p.value)
+                except ValueError as exc:
+                    return SetParametersResult(successful=False, reason=str(exc))
             elif p.name == 'autostart' and p.type_ != Parameter.Type.BOOL:
                 return SetParametersResult(successful=False,
                                            reason='autostart must be true or false')
@@ -338,6 +378,8 @@ class RecorderNode(Node):
         description = self._param('experiment_description')
         if description:
             queued.set_custom_data('emfc_ros.experiment', description)
+        for key, text in custom_entries(self._param('custom_data')).items():
+            queued.set_custom_data(key, text)
         self._discover()
         self._discovery_timer = self.create_timer(float(self._param('discovery_period_s')),
                                                   self._discover)

@@ -5,9 +5,18 @@ The offline command, the identifier node and the experiment runner all call
 :func:`identify_bag`.
 
 The bag must hold a measurement block stream (``<ns>/measurements``) and the excitation's
-stream description (``<ns>/excitation/description``, which carries the section table); the
-plant configuration (pan load, load-changer coupling) is taken from the recorded node
-parameters when the options do not give it.
+stream description (``<ns>/excitation/description``, which carries the section table).
+
+Options: the identification options stored in the bag's custom data
+(``emfc_ros.identification_options``, written by the experiment runner from its plan), merged
+key by key with the options given (which win), so that ``emfc-identify BAG`` reproduces the
+run's identification.
+
+Pan load and load-changer coupling, never a silent default, from the first that has them:
+the options given, the bag's ``emfc_ros.plant_configuration`` (the runner: the plan's mass
+pieces), the measurement description's ``extra`` (a daq_bridge told the pan load), the
+recorded node parameters (a plant simulator). Without any, :class:`PlantConfigurationError`
+names the option to give.
 
 Measurements recorded through the daq_bridge are on the device's sample clock: excitation
 sample ``k`` was applied at device sample ``k + offset``, the offset published in the
@@ -27,6 +36,114 @@ from emfc_ros.core.ident.errors import IdentificationError
 
 Progress = Callable[[str, float, str], None]
 PLANT_KEYS = ('load_mass_kg', 'load_changer_coupled')
+OPTIONS_KEY = 'emfc_ros.identification_options'
+PLANT_KEY = 'emfc_ros.plant_configuration'
+
+
+class PlantConfigurationError(IdentificationError):
+    """The pan load (or the load-changer coupling) of a recording is not known."""
+
+
+def _yaml_mapping(text: str) -> Dict[str, Any]:
+    try:
+        doc = yaml.safe_load(text or '') or {}
+    except yaml.YAMLError:
+        return {}
+    return doc if isinstance(doc, dict) else {}
+
+
+def stored_options(bag_path: Path) -> Dict[str, Any]:
+    """
+    The identification options stored in a bag (empty when none).
+
+    Parameters
+    ----------
+    bag_path : pathlib.Path
+        The bag folder.
+
+    Returns
+    -------
+    dict
+        The mapping the experiment runner used.
+    """
+    return _yaml_mapping(custom_data(bag_path).get(OPTIONS_KEY, ''))
+
+
+def merged_options(base: Mapping[str, Any], override: Mapping[str, Any]) -> Dict[str, Any]:
+    """
+    Merge option mappings key by key (nested mappings too); ``override`` wins.
+
+    Parameters
+    ----------
+    base, override : Mapping
+        The stored and the given options.
+
+    Returns
+    -------
+    dict
+        The merged options.
+    """
+    out = dict(base)
+    for key, value in override.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = merged_options(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def resolve_plant(bag_path: Path, options: Mapping[str, Any], measurements: Any = None
+                  ) -> Tuple[Dict[str, Any], str]:
+    """
+    Pan load and load-changer coupling of a recording, and where they come from.
+
+    Parameters
+    ----------
+    bag_path : pathlib.Path
+        The bag folder.
+    options : Mapping
+        The options given (their ``load_mass_kg``/``load_changer_coupled`` win).
+    measurements : Stream, optional
+        The measurement stream (its description's ``extra``).
+
+    Returns
+    -------
+    settings : dict
+        ``load_mass_kg`` and ``load_changer_coupled``.
+    source : str
+        Where they were found.
+
+    Raises
+    ------
+    PlantConfigurationError
+        When no source gives the pan load.
+    """
+    description = getattr(measurements, 'description', None)
+    extra = description.extra if description is not None else {}
+    sources = [('options', {k: options[k] for k in PLANT_KEYS if k in options})]
+    stored = _yaml_mapping(custom_data(bag_path).get(PLANT_KEY, ''))
+    sources.append((f'bag custom data {PLANT_KEY}'
+                    + (f' ({stored["source"]})' if stored.get('source') else ''),
+                    {k: stored[k] for k in PLANT_KEYS if k in stored}))
+    sources.append(('measurement description (extra)',
+                    {k: extra[k] for k in PLANT_KEYS if extra.get(k) is not None}))
+    sources.append(('recorded node parameters', plant_settings(bag_path)))
+    settings: Dict[str, Any] = {}
+    where: Dict[str, str] = {}
+    for name, found in sources:
+        for key in PLANT_KEYS:
+            if key not in settings and key in found:
+                settings[key], where[key] = found[key], name
+    if 'load_mass_kg' not in settings:
+        raise PlantConfigurationError(
+            'the pan load of this recording is unknown (no load_mass_kg in the bag custom '
+            f'data {PLANT_KEY}, the measurement description or the recorded node parameters): '
+            'give it with `emfc-identify --load-mass-kg KG` (or `load_mass_kg` in the '
+            '--options file); the grey-box model is not identified with a guessed load')
+    settings.setdefault('load_changer_coupled', True)
+    where.setdefault('load_changer_coupled', 'default (coupled), no source had it')
+    text = '; '.join(f'{k} from {v}' for k, v in where.items())
+    return settings, text
 
 
 def find_namespace(topics: Mapping[str, Any], namespace: Optional[str] = None) -> str:
@@ -101,7 +218,8 @@ def identify_bag(bag_path: Path, options: Optional[Mapping[str, Any]] = None,
     bag_path : pathlib.Path
         The bag folder.
     options : Mapping, optional
-        Identification options (the pipeline's configuration mapping).
+        Identification options (the pipeline's configuration mapping), merged over the ones
+        stored in the bag.
     namespace : str, optional
         Which namespace's streams to use when the bag holds several.
     progress : callable, optional
@@ -114,10 +232,13 @@ def identify_bag(bag_path: Path, options: Optional[Mapping[str, Any]] = None,
     result : IdentificationResult
         The pipeline's result.
     info : dict
-        What was read: namespace, samples, sample rate, sections, plant settings used.
+        What was read: namespace, samples, sample rate, sections, plant settings used and
+        their source.
 
     Raises
     ------
+    PlantConfigurationError
+        If the pan load is not known (give ``load_mass_kg`` in the options).
     IdentificationError
         If the streams needed are missing or have gaps.
     """
@@ -141,10 +262,10 @@ def identify_bag(bag_path: Path, options: Optional[Mapping[str, Any]] = None,
                        + ([excitation.first_sample_index + excitation.n_samples]
                           if excitation is not None else []))
     recording = aligned_channels(measurements, offset, n_excitation if offset else None, ns)
-    options = dict(options or {})
-    settings = plant_settings(bag_path)
-    for key, value in settings.items():
-        options.setdefault(key, value)
+    given = dict(options or {})
+    options = merged_options(stored_options(bag_path), given)
+    settings, source = resolve_plant(bag_path, given, measurements)
+    options.update(settings)
     n = len(next(iter(recording.values()))) if recording else 0
     report('read bag', 1.0, f'{n} samples of {ns}/measurements'
            + (f' from device sample {offset}' if offset else ''))
@@ -153,7 +274,8 @@ def identify_bag(bag_path: Path, options: Optional[Mapping[str, Any]] = None,
     info = {'namespace': ns, 'samples': n,
             'sample_rate_Hz': measurements.sample_rate_Hz, 'sections': sections,
             'excitation_offset_samples': offset,
-            'plant_settings_from_bag': settings}
+            'plant_settings': settings, 'plant_settings_source': source}
+    result.plant_source = source
     return result, info
 
 

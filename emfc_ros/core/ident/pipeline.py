@@ -164,6 +164,8 @@ class IdentificationResult:
         :attr:`success` is False when any is listed.
     timings_s : dict of str to float
         Wall time per step [s].
+    plant_source : str
+        Where the pan load and the load-changer coupling came from.
     """
 
     sample_rate_Hz: float
@@ -176,6 +178,7 @@ class IdentificationResult:
     warnings: List[str] = field(default_factory=list)
     failures: List[str] = field(default_factory=list)
     timings_s: Dict[str, float] = field(default_factory=dict)
+    plant_source: str = 'identification options'
 
     @property
     def success(self) -> bool:
@@ -225,7 +228,8 @@ class IdentificationResult:
             'sections': [{'name': s.name, 'first_sample_index': s.first_sample_index,
                           'n_samples': s.n_samples} for s in self.sections],
             'configuration': {'load_mass_kg': self.config.load_mass_kg,
-                              'load_changer_coupled': self.config.load_changer_coupled},
+                              'load_changer_coupled': self.config.load_changer_coupled,
+                              'source': self.plant_source},
             'frequency_responses': [_frf_dict(r) for r in self.frfs],
             'static_characteristics': _static_dict(self.static),
             'greybox': greybox_dict(self.greybox),

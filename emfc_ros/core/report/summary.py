@@ -39,11 +39,18 @@ def summary_markdown(result: Any, plots: Sequence[str] = (),
         The Markdown text.
     """
     d: Mapping = result.to_dict()
-    lines = ['# Identification of the EMFC balance', '',
+    status = d.get('status') or {'success': True, 'failures': []}
+    headline = ('**Identification succeeded**: no failure found (the warnings below still '
+                'apply).' if status['success'] else
+                '**Identification FAILED**: ' + '; '.join(status['failures'])
+                + '. The numbers below are what the fit reached, not a usable model.')
+    source = d['configuration'].get('source')
+    lines = ['# Identification of the EMFC balance', '', headline, '',
              f'Recording: {d["n_samples"]} samples at {d["sample_rate_Hz"]:g} Hz '
              f'({d["duration_s"]:.3g} s), {len(d["sections"])} sections; load on the pan '
              f'{d["configuration"]["load_mass_kg"]:.6g} kg, load changer '
-             f'{"coupled" if d["configuration"]["load_changer_coupled"] else "not coupled"}.',
+             f'{"coupled" if d["configuration"]["load_changer_coupled"] else "not coupled"}'
+             + (f' ({source})' if source else '') + '.',
              '', 'Steps run: ' + (', '.join(f'{k} ({v:.2f} s)' for k, v in
                                             d['timings_s'].items()) or 'none') + '.', '']
     frfs = d['frequency_responses']
@@ -115,9 +122,45 @@ def summary_markdown(result: Any, plots: Sequence[str] = (),
                           for p in lin['poles'][::2])
         zeros = ', '.join(f'{z["signed_frequency_Hz"]:.5g} Hz' for z in lin['zeros_coil'][::2])
         lines += ['', f'Linearised fitted model: poles {poles}; coil zeros {zeros}.', '']
+    lines += model_parameter_lines(d.get('model_parameters'))
     if plots:
         lines += ['## Plots', ''] + [f'- [{p}]({p})' for p in plots] + ['']
     warn = list(d['warnings']) + list(notes)
     lines += ['## Warnings', ''] + ([f'- {w}' for w in warn] if warn else ['- none']) + ['']
     lines += ['All numbers with units and uncertainties are in `results.yaml`.', '']
     return '\n'.join(lines)
+
+
+def model_parameter_lines(rows: Optional[Sequence[Mapping[str, Any]]]) -> list:
+    """
+    The table of every model parameter: identified or fixed, value, uncertainty, source.
+
+    Parameters
+    ----------
+    rows : sequence of mapping or None
+        ``results.yaml``'s ``model_parameters`` (``name, value, unit, status, source,
+        standard_uncertainty`` and an optional ``note``).
+
+    Returns
+    -------
+    list of str
+        Markdown lines (none without rows).
+    """
+    if not rows:
+        return []
+    lines = ['## Every model parameter', '',
+             '| parameter | value | standard uncertainty | unit | status | source |',
+             '|---|---|---|---|---|---|']
+    notes = []
+    for r in rows:
+        se = r.get('standard_uncertainty')
+        mark = ''
+        if r.get('note'):
+            notes.append(f'{r["name"]}: {r["note"]}.')
+            mark = f' [{len(notes)}]'
+        lines.append(f'| {r["name"]}{mark} | {r["value"]:.6g} | '
+                     f'{"" if se is None else f"{se:.2g}"} | {r["unit"]} | {r["status"]} | '
+                     f'{r["source"]} |')
+    lines.append('')
+    lines += [f'[{i}] {n}' for i, n in enumerate(notes, 1)]
+    return lines + ([''] if notes else [])
