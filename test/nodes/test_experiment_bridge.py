@@ -11,6 +11,7 @@ simulator target's on the same experiment.
 import json
 import os
 from pathlib import Path
+import shutil
 import subprocess
 import sys
 
@@ -182,6 +183,33 @@ def test_bridge_run_on_the_emulator_matches_the_simulator_target(tmp_path):
     gains = [{c['power']: c['value'] for c in x['static_characteristics']['coil_amplifier'][
         'coefficients_ascending']}[1] for x in (results, sim)]
     assert abs(gains[0] / gains[1] - 1.0) < 1e-3, gains
+
+    # A hardware bag that does not say what was on the pan (the runner's plant configuration
+    # and the node parameters removed): emfc-identify stops, naming the option, writes nothing
+    blind = tmp_path / 'blind'
+    shutil.copytree(out / 'bag', blind)
+    meta = yaml.safe_load((blind / 'metadata.yaml').read_text())
+    custom = meta['rosbag2_bagfile_information']['custom_data']
+    for key in ('emfc_ros.plant_configuration', 'emfc_ros.node_parameters'):
+        custom.pop(key, None)
+    (blind / 'metadata.yaml').write_text(yaml.safe_dump(meta))
+    identify = shutil.which('emfc-identify') or str(Path(sys.executable).parent /
+                                                    'emfc-identify')
+    refused = subprocess.run([identify, str(blind), '-o', str(tmp_path / 'x')],
+                             capture_output=True, text=True, timeout=600,
+                             env=ros_harness.child_environment(), cwd=tmp_path)
+    assert refused.returncode == 2, refused.stdout[-2000:] + refused.stderr[-2000:]
+    assert '--load-mass-kg' in refused.stderr and 'load_mass_kg' in refused.stderr
+    assert not (tmp_path / 'x').exists()
+    told = subprocess.run([identify, str(blind), '-o', str(tmp_path / 'told'),
+                           '--load-mass-kg', repr(results['configuration']['load_mass_kg']),
+                           '--load-changer-coupled', 'true'],
+                          capture_output=True, text=True, timeout=600,
+                          env=ros_harness.child_environment(), cwd=tmp_path)
+    assert told.returncode == 0, told.stdout[-2000:] + told.stderr[-2000:]
+    back = yaml.safe_load((tmp_path / 'told' / 'results.yaml').read_text())
+    assert back['configuration']['source'].startswith('load_mass_kg from options')
+    assert back['greybox']['parameters'] == results['greybox']['parameters']
 
 
 @pytest.mark.slow

@@ -27,11 +27,23 @@ def _runner() -> str:
                                                   'emfc-experiment')
 
 
-@pytest.mark.slow
-def test_default_job_produces_all_outputs_and_an_exact_bag(tmp_path):
+def _identify_cli() -> str:
+    return shutil.which('emfc-identify') or str(Path(sys.executable).parent / 'emfc-identify')
+
+
+@pytest.fixture(scope='module')
+def default_run(tmp_path_factory):
+    """The README's main job, run once as a user runs it."""
+    tmp_path = tmp_path_factory.mktemp('default_run')
     out = tmp_path / 'run'
     result = subprocess.run([_runner(), '-o', str(out)], capture_output=True, text=True,
                             timeout=900, env=ros_harness.child_environment(), cwd=tmp_path)
+    return out, result
+
+
+@pytest.mark.slow
+def test_default_job_produces_all_outputs_and_an_exact_bag(default_run):
+    out, result = default_run
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     for name in ('experiment.yaml', 'run.yaml', 'timing.json', 'summary.md',
                  'bag/metadata.yaml', 'bag/bag_0.mcap', 'identification/results.yaml',
@@ -69,6 +81,63 @@ def test_default_job_produces_all_outputs_and_an_exact_bag(tmp_path):
     assert 0.05 < run['simulator']['load_mass_kg_used'] < 0.2     # the balancing mass
     summary = (out / 'summary.md').read_text()
     assert 'experiment' in summary and 'Read back 490000 samples' in summary
+
+
+def _numbers(results: dict) -> dict:
+    """What an identification found, without timings and file names."""
+    g = results['greybox']
+    return {'status': results['status'], 'configuration': results['configuration'],
+            'greybox': {k: g[k] for k in ('parameters', 'derived', 'sections', 'cost')},
+            'frequency_responses': results['frequency_responses'],
+            'static_characteristics': results['static_characteristics'],
+            'model_parameters': results['model_parameters']}
+
+
+@pytest.mark.slow
+def test_identify_cli_reproduces_the_main_job_and_needs_the_pan_load(default_run, tmp_path):
+    out, result = default_run
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    custom = read_metadata(out / 'bag')['custom_data']
+    options = yaml.safe_load(custom['emfc_ros.identification_options'])
+    assert options['greybox']['sections'][0] == 'coil_chirp'
+    plant = yaml.safe_load(custom['emfc_ros.plant_configuration'])
+    assert 0.05 < plant['load_mass_kg'] < 0.2 and plant['load_changer_coupled'] is True
+    # `emfc-identify BAG` as a user types it reproduces the main job's identification
+    again = tmp_path / 'again'
+    ident = subprocess.run([_identify_cli(), str(out / 'bag'), '-o', str(again)],
+                           capture_output=True, text=True, timeout=600,
+                           env=ros_harness.child_environment(), cwd=tmp_path)
+    assert ident.returncode == 0, ident.stdout[-3000:] + ident.stderr[-3000:]
+    first = yaml.safe_load((out / 'identification' / 'results.yaml').read_text())
+    second = yaml.safe_load((again / 'results.yaml').read_text())
+    assert _numbers(second) == _numbers(first)
+    assert first['status']['success'] is True
+    assert 'plant_configuration' in first['configuration']['source']
+    assert (out / 'identification' / 'summary.md').read_text().count(
+        '**Identification succeeded**') == 1
+    # without the runner's plant configuration and the node parameters, the plant
+    # simulator's measurement description still says what was on the pan
+    blind = tmp_path / 'blind'
+    strip_plant_configuration(out / 'bag', blind)
+    told = subprocess.run([_identify_cli(), str(blind), '-o', str(tmp_path / 'told')],
+                          capture_output=True, text=True, timeout=600,
+                          env=ros_harness.child_environment(), cwd=tmp_path)
+    assert told.returncode == 0, told.stdout[-2000:] + told.stderr[-2000:]
+    back = yaml.safe_load((tmp_path / 'told' / 'results.yaml').read_text())
+    assert back['configuration']['source'].startswith(
+        'load_mass_kg from measurement description')
+    assert back['greybox']['parameters']['c2_Nm_per_rad']['value'] == \
+        first['greybox']['parameters']['c2_Nm_per_rad']['value']
+
+
+def strip_plant_configuration(bag: Path, copy: Path) -> None:
+    """Copy a bag without the runner's plant configuration and the recorded node parameters."""
+    shutil.copytree(bag, copy)
+    meta = yaml.safe_load((copy / 'metadata.yaml').read_text())
+    custom = meta['rosbag2_bagfile_information']['custom_data']
+    for key in ('emfc_ros.plant_configuration', 'emfc_ros.node_parameters'):
+        custom.pop(key)
+    (copy / 'metadata.yaml').write_text(yaml.safe_dump(meta))
 
 
 def test_bad_plan_is_refused_with_the_key(tmp_path):

@@ -116,7 +116,7 @@ def resolve_plant(bag_path: Path, options: Mapping[str, Any], measurements: Any 
     Raises
     ------
     PlantConfigurationError
-        When no source gives the pan load.
+        When no source gives the pan load or the coupling.
     """
     description = getattr(measurements, 'description', None)
     extra = description.extra if description is not None else {}
@@ -140,8 +140,11 @@ def resolve_plant(bag_path: Path, options: Mapping[str, Any], measurements: Any 
             f'data {PLANT_KEY}, the measurement description or the recorded node parameters): '
             'give it with `emfc-identify --load-mass-kg KG` (or `load_mass_kg` in the '
             '--options file); the grey-box model is not identified with a guessed load')
-    settings.setdefault('load_changer_coupled', True)
-    where.setdefault('load_changer_coupled', 'default (coupled), no source had it')
+    if 'load_changer_coupled' not in settings:
+        raise PlantConfigurationError(
+            'whether the load changer rode on the pan is unknown for this recording: give it '
+            'with `emfc-identify --load-changer-coupled true|false` (or '
+            '`load_changer_coupled` in the --options file)')
     text = '; '.join(f'{k} from {v}' for k, v in where.items())
     return settings, text
 
