@@ -231,12 +231,19 @@ def run_broken(draw_seed: int, name: str, spread: float) -> Dict[str, Any]:
     rel = [p.get('relative_standard_error', 0.0) for n, p in out.get('parameters', {}).items()
            if n in CORE]
     largest = max(rel) if rel else float('nan')
+    params = out.get('parameters', {})
+    right = all(abs(params[n].get('error', float('inf'))) <= target_of(n)
+                for n in CORE if n in params) and bool(params) and \
+        all(abs(m['error']) <= TARGETS['mode'] for m in (out.get('modes') or {}).values())
     if not out['success']:
         verdict = 'failure flag'
     elif largest > LARGE_UNCERTAINTY:
         verdict = 'large uncertainty'
+    elif right:
+        verdict = ('not needed: c, d and the modes are right within the targets (the broken '
+                   'input does not enter them)')
     else:
-        verdict = 'MISSED (success, small uncertainty)'
+        verdict = 'MISSED (a confident wrong answer)'
     return {'kind': 'broken', 'name': name, 'description': broken.broken,
             'draw_seed': draw_seed, 'largest_relative_standard_error': largest,
             'verdict': verdict, 'estimate': out}

@@ -149,3 +149,14 @@ def test_welch_option_and_disabled_steps(recording, truth_model):
     high = res.frf('coil_chirp', 'coil').fit.chosen.modes[-1]
     assert res.frf('coil_chirp', 'coil').frd.estimator == 'H1'
     np.testing.assert_allclose(high.frequency_Hz, poles[-1].frequency_Hz, rtol=0.01)
+
+
+def test_modes_outside_the_fitted_band_are_flagged(result):
+    d = result.to_dict()
+    coil = next(r for r in d['frequency_responses'] if r['name'] == 'coil_chirp.coil')
+    tf = coil['transfer_function']
+    low, high = tf['resonances'][0], tf['resonances'][-1]
+    # the 3.6 Hz mode lies below the 5 Hz start of the band, the 353 Hz mode inside it
+    assert low['frequency_Hz'] < coil['frequency_min_Hz'] and low['extrapolated'] is True
+    assert high['extrapolated'] is False
+    assert any('extrapolated' in w and 'coil_chirp.coil' in w for w in result.warnings)

@@ -533,6 +533,15 @@ def _tf_step(result: IdentificationResult, report: Progress) -> None:
             continue
         if not r.fit.chosen.is_stable:
             result.warnings.append(f'tf_fit: {r.name}: the chosen fit is not stable')
+        lo, hi = fitted_band(r)
+        for kind, roots in (('resonance', r.fit.chosen.modes),
+                            ('anti-resonance', r.fit.chosen.anti_resonances)):
+            for m in roots:
+                if not lo <= m.frequency_Hz <= hi:
+                    result.warnings.append(
+                        f'tf_fit: {r.name}: the {kind} at {m.frequency_Hz:.4g} Hz lies outside '
+                        f'the fitted band {lo:.4g} to {hi:.4g} Hz (extrapolated; its '
+                        f'uncertainty rests on the model order)')
     report('tf_fit', 1.0, 'transfer-function fits done')
 
 
@@ -708,9 +717,28 @@ def modal_features(result: IdentificationResult
 # ---------------------------------------------------------------- serialisation
 
 
-def _mode_dict(mode: Any) -> dict:
+def _mode_dict(mode: Any, band: Tuple[float, float]) -> dict:
     return {'frequency_Hz': mode.frequency_Hz, 'frequency_std_Hz': mode.frequency_std_Hz,
-            'damping_ratio': mode.damping_ratio, 'damping_ratio_std': mode.damping_std}
+            'damping_ratio': mode.damping_ratio, 'damping_ratio_std': mode.damping_std,
+            'extrapolated': not band[0] <= mode.frequency_Hz <= band[1]}
+
+
+def fitted_band(r: FrfResult) -> Tuple[float, float]:
+    """
+    Frequency range of the lines an FRF's transfer-function fit saw.
+
+    Parameters
+    ----------
+    r : FrfResult
+        The FRF.
+
+    Returns
+    -------
+    (float, float)
+        Lowest and highest line [Hz] (NaN without lines).
+    """
+    f = r.frd.frequency_Hz
+    return (float(f.min()), float(f.max())) if f.size else (math.nan, math.nan)
 
 
 def _frf_dict(r: FrfResult) -> dict:
@@ -741,8 +769,8 @@ def _frf_dict(r: FrfResult) -> dict:
             'numerator_s_rad_per_s': list(c.numerator), 'denominator_s_rad_per_s':
                 list(c.denominator),
             'stable': bool(c.is_stable), 'criterion': r.fit.criterion,
-            'resonances': [_mode_dict(m) for m in c.modes],
-            'anti_resonances': [_mode_dict(m) for m in c.anti_resonances],
+            'resonances': [_mode_dict(m, fitted_band(r)) for m in c.modes],
+            'anti_resonances': [_mode_dict(m, fitted_band(r)) for m in c.anti_resonances],
             'real_zeros_Hz': [z.signed_frequency_Hz for z in c.zeros if z.is_real],
             'order_table': [dict(row) for row in r.fit.table],
         }

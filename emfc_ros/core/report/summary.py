@@ -19,6 +19,12 @@ def _pm(value: Optional[float], std: Optional[float], digits: int = 5) -> str:
     return f'{value:.{digits}g} +/- {std:.2g}'
 
 
+def _modes_text(modes: Sequence[Mapping[str, Any]]) -> str:
+    return '; '.join(f'{_pm(m["frequency_Hz"], m["frequency_std_Hz"])} '
+                     f'({_pm(m["damping_ratio"], m["damping_ratio_std"], 4)})'
+                     + (' extrapolated' if m.get('extrapolated') else '') for m in modes)
+
+
 def summary_markdown(result: Any, plots: Sequence[str] = (),
                      notes: Sequence[str] = ()) -> str:
     """
@@ -66,12 +72,8 @@ def summary_markdown(result: Any, plots: Sequence[str] = (),
             coh = f'{r["median_coherence"]:.3f}' if r['median_coherence'] is not None else ''
             if tf:
                 order = f'{tf["numerator_order"]}/{tf["denominator_order"]}'
-                res = '; '.join(f'{_pm(m["frequency_Hz"], m["frequency_std_Hz"])} '
-                                f'({_pm(m["damping_ratio"], m["damping_ratio_std"], 4)})'
-                                for m in tf['resonances'])
-                anti = '; '.join(f'{_pm(m["frequency_Hz"], m["frequency_std_Hz"])} '
-                                 f'({_pm(m["damping_ratio"], m["damping_ratio_std"], 4)})'
-                                 for m in tf['anti_resonances']) or 'none'
+                res = _modes_text(tf['resonances'])
+                anti = _modes_text(tf['anti_resonances']) or 'none'
             else:
                 order, res, anti = 'not fitted', '', ''
             lines.append(f'| {r["name"]} | {r["estimator"]} | {band} | {coh} | {order} | '
