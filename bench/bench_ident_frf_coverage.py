@@ -1,0 +1,100 @@
+"""
+Whether the FRF points' and the transfer-function modes' uncertainties match their errors.
+
+Noise repetitions of one off-nominal draw (``emfc_ros.core.ident.offnominal``, benchmark seeds
+only) through the shipped trajectory; the grey-box step is off. For every LPM line between
+10 Hz and 1 kHz, ``|e|^2 / std^2`` against the drawn balance's linear model (exponential with
+mean 1 when the std is right, below -ln 0.05 = 3.0 in 95 % of the lines), and for the coil
+and pan transfer-function fits the modes' ``z = error / std`` (standard deviation 1 and 95 %
+inside +/-1.96 when right). The same-run reference is the ideal: mean 1, coverage 95 %.
+
+    .venv/bin/python bench/bench_ident_frf_coverage.py --reps 15 \
+        --json bench/results/frf_coverage.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+import sys
+import time
+from typing import Dict, List
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))   # the working tree, not an installed copy
+
+from emfc_ros.core.ident.balance_experiment import section_table  # noqa: E402
+from emfc_ros.core.ident.offnominal import (BENCH_NOISE_SEEDS, BENCH_SEEDS,  # noqa: E402
+                                            draw_balance, record_draw)
+from emfc_ros.core.ident.pipeline import identify  # noqa: E402
+from emfc_ros.core.model.linear import linearise  # noqa: E402
+from emfc_ros.core.model.load import loaded  # noqa: E402
+
+#: Noise seeds used here (disjoint from bench_ident_offnominal's repetitions, which start at
+#: BENCH_NOISE_SEEDS[0]).
+FIRST_NOISE = 300
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--reps', type=int, default=15, help='noise repetitions')
+    parser.add_argument('--draw-index', type=int, default=1, help='which of BENCH_SEEDS')
+    parser.add_argument('--json', default=None, help='write the figures to this file')
+    args = parser.parse_args()
+    draw = draw_balance(BENCH_SEEDS[args.draw_index])
+    lines: Dict[str, List[np.ndarray]] = {}
+    z: Dict[str, List[float]] = {}
+    t0 = time.perf_counter()
+    for seed in BENCH_NOISE_SEEDS[FIRST_NOISE:FIRST_NOISE + args.reps]:
+        rec = record_draw(draw, seed)
+        options = dict(rec.options(), greybox={'enabled': False})
+        res = identify(rec.recording, section_table(rec.recording), options)
+        lin = linearise(loaded(draw.mechanics, options['load_mass_kg'],
+                               options['load_changer_coupled']))
+        for r in res.frfs:
+            band = (r.frd.frequency_Hz >= 10.0) & (r.frd.frequency_Hz <= 1000.0)
+            f = r.frd.frequency_Hz[band]
+            h = lin.frequency_response(f, r.input).response_m_per_N
+            lines.setdefault(r.name, []).append(
+                np.abs(r.frd.response[band] - h) ** 2 / r.frd.std[band] ** 2)
+            if r.fit is None:
+                continue
+            c = r.fit.chosen
+            truth = rec.modal
+            pairs = [('low mode', c.modes[0], truth.low_mode_Hz),
+                     ('high mode', c.modes[-1], truth.high_mode_Hz)]
+            if r.input == 'coil' and c.anti_resonances:
+                pairs.append(('anti-resonance', c.anti_resonances[0], truth.anti_resonance_Hz))
+            for label, mode, true in pairs:
+                z.setdefault(f'{r.name} {label}', []).append(
+                    (mode.frequency_Hz - true) / mode.frequency_std_Hz)
+    out = {'reps': args.reps, 'draw_seed': BENCH_SEEDS[args.draw_index],
+           'wall_time_s': time.perf_counter() - t0, 'frf_points': {}, 'modes': {}}
+    print(f'{args.reps} noise repetitions of draw {BENCH_SEEDS[args.draw_index]}')
+    print('| FRF points 10 Hz - 1 kHz | lines | mean |e|^2/std^2 (ideal 1) | '
+          '95 % coverage (ideal 95 %) |')
+    for name, parts in lines.items():
+        e2 = np.concatenate(parts)
+        row = {'lines': int(e2.size), 'mean_ratio': float(e2.mean()),
+               'coverage_95': float(np.mean(e2 < -np.log(0.05)))}
+        out['frf_points'][name] = row
+        print(f'| {name} | {row["lines"]} | {row["mean_ratio"]:.2f} | '
+              f'{100 * row["coverage_95"]:.1f} % |')
+    print('| TF-fit mode | n | std of z (ideal 1) | 95 % coverage (ideal 95 %) |')
+    for name, values in z.items():
+        v = np.array(values)
+        row = {'n': int(v.size), 'std_z': float(np.std(v)),
+               'coverage_95': float(np.mean(np.abs(v) < 1.96))}
+        out['modes'][name] = row
+        print(f'| {name} | {row["n"]} | {row["std_z"]:.2f} | {100 * row["coverage_95"]:.0f} % |')
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(out, indent=2))
+        print(f'wrote {args.json}')
+
+
+if __name__ == '__main__':
+    main()
