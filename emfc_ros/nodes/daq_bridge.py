@@ -124,11 +124,55 @@ PARAMETERS: Dict[str, Tuple[Any, str]] = {
                                       "'sample_clock' or 'fast'"),
     'replay.speed': (1.0, 'replay: speed factor [1], > 0'),
     'replay.loop': (False, 'replay: start over in a new epoch after the last block'),
+    'pan.load_mass_kg': (-1.0, 'mass on the pan during the experiment [kg], 0 to 100, '
+                               'published in the measurement description for the '
+                               'identification (emfc-identify reads it); negative: not '
+                               'declared'),
+    'pan.load_changer_coupled': ('', "'true' or 'false': whether the load changer's moving "
+                                     'mass rides on the pan (published like '
+                                     "pan.load_mass_kg); '': not declared"),
     'sim.seed': (0, 'sim: noise seed, >= 0'),
     'sim.load_mass_kg': (0.0, 'sim: mass on the pan [kg], 0 to 2'),
     'sim.load_changer_coupled': (False, "sim: the load changer's moving mass rides on the "
                                         'pan'),
 }
+
+
+def declared_pan_load(load_mass_kg: float, coupled: str) -> Dict[str, Any]:
+    """
+    The pan load a user declared to the bridge, for the measurement description.
+
+    Parameters
+    ----------
+    load_mass_kg : float
+        ``pan.load_mass_kg`` [kg]; negative: not declared.
+    coupled : str
+        ``pan.load_changer_coupled``: ``'true'``, ``'false'`` or ``''`` (not declared).
+
+    Returns
+    -------
+    dict
+        ``load_mass_kg`` and ``load_changer_coupled`` as declared (empty when not).
+
+    Raises
+    ------
+    ConfigError
+        For a non-finite or too large mass, or another coupling text.
+    """
+    out: Dict[str, Any] = {}
+    if not math.isfinite(load_mass_kg) or load_mass_kg > 100.0:
+        raise ConfigError('pan.load_mass_kg', f'must be from 0 to 100 kg (negative: not '
+                                              f'declared), got {load_mass_kg}')
+    if load_mass_kg >= 0.0:
+        out['load_mass_kg'] = load_mass_kg
+    if coupled not in ('', 'true', 'false'):
+        raise ConfigError('pan.load_changer_coupled', f"must be 'true', 'false' or '', got "
+                                                      f'{coupled!r}')
+    if coupled:
+        out['load_changer_coupled'] = coupled == 'true'
+    return out
+
+
 #: Function-generator fields (``funcgen.<output>.<field>``) and their defaults.
 FUNCGEN_FIELDS = {
     'waveform': ('off', "'off' (follow the excitation stream), 'sine', 'chirp', 'prbs', "
@@ -207,6 +251,7 @@ class DaqBridgeNode(Node):
         self._state = 'idle'
         self._backend: Any = None
         self._config: Optional[DeviceConfig] = None
+        self._pan: Dict[str, Any] = {}
         self._specs: List[GeneratorSpec] = []
         self._balance: Any = None
         self._counts: Dict[str, int] = collections.Counter()
@@ -345,6 +390,8 @@ class DaqBridgeNode(Node):
                 backend = create_backend('sim', params=self._balance, seed=seed,
                                          simulator_options={'load_mass_kg': load,
                                                             'load_changer_coupled': coupled})
+        self._pan = declared_pan_load(float(self._param('pan.load_mass_kg')),
+                                      str(self._param('pan.load_changer_coupled')))
         rate = float(self._param('state_rate_Hz'))
         if not 0.0 <= rate <= config.sample_rate_Hz:
             raise ConfigError('state_rate_Hz', f'must be in [0, {config.sample_rate_Hz}] Hz, '
@@ -896,6 +943,7 @@ class DaqBridgeNode(Node):
                  'excitation_offset_samples': self._offset,
                  'outputs': [{'name': c.name, 'min_V': c.min_V, 'max_V': c.max_V,
                               'safe_V': c.safe_V} for c in cfg.outputs]}
+        extra.update(self._pan)
         if getattr(self._backend, 'name', '') == 'replay':
             extra['replay_bag'] = self._backend.bag
             extra['replay_topic'] = self._backend.topic

@@ -384,6 +384,27 @@ def test_invalid_start_up_parameters_leave_a_running_node_that_says_why(
     assert not result.success and 'backend' in result.message
 
 
+def test_declared_pan_load_reaches_the_measurement_description(executor, ros_context):
+    bridge = DaqBridgeNode(context=ros_context, parameter_overrides=bridge_params(
+        backend='sim', **{'pan.load_mass_kg': 0.1024, 'pan.load_changer_coupled': 'true'}))
+    probe = Probe(ros_context)
+    setup_nodes(executor, bridge, probe.node)
+    assert ros_harness.spin_until(executor, lambda: len(probe.descriptions) >= 1, TIMEOUT_S)
+    extra = msg_to_description(probe.descriptions[-1]).extra
+    assert extra['load_mass_kg'] == 0.1024 and extra['load_changer_coupled'] is True
+
+
+def test_a_wrong_pan_declaration_leaves_a_node_that_says_why(executor, ros_context):
+    bridge = DaqBridgeNode(context=ros_context, parameter_overrides=bridge_params(
+        backend='sim', **{'pan.load_changer_coupled': 'maybe'}))
+    probe = Probe(ros_context)
+    setup_nodes(executor, bridge, probe.node)
+    assert ros_harness.spin_until(executor, lambda: probe.diag('error') is not None,
+                                  TIMEOUT_S)
+    assert 'pan.load_changer_coupled' in probe.diag('error')
+    assert probe.diag('state') == 'error'
+
+
 def test_replay_republishes_a_recorded_bag_with_the_same_indices(
         executor, ros_context, tmp_path):
     # Record the sim back-end's measurements into a bag, as the recorder does (raw CDR).
