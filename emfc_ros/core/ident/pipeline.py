@@ -29,6 +29,7 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 import warnings
 
 import numpy as np
+from scipy import stats
 
 from emfc_ros.core.ident import balance_fit
 from emfc_ros.core.ident.balance_result import (BalanceGreyboxResult, greybox_dict,
@@ -753,6 +754,13 @@ def _frf_dict(r: FrfResult) -> dict:
         'median_coherence': float(np.nanmedian(frd.coherence)) if frd.coherence.size else None,
         'hold_compensation': frd.details.get('hold_compensation', 'none'),
     }
+    # An LPM std comes from a noise variance of few complex residuals (6 by default, 12 real
+    # degrees of freedom): a 95 % interval of the magnitude or the phase needs Student's t
+    # with those degrees of freedom, not 1.96 (GUM G.3); both are reported.
+    dof = frd.details.get('dof')
+    if dof:
+        out['std_degrees_of_freedom'] = 2 * int(dof)
+        out['coverage_factor_95'] = float(stats.t.ppf(0.975, 2 * int(dof)))
     if r.selected is not None:
         s = r.selected
         out['selected_frequencies'] = [
