@@ -120,10 +120,10 @@ def test_progress_and_serialisation(result):
     back = yaml.safe_load(text)
     assert back['greybox']['parameters']['c2_Nm_per_rad']['unit'] == 'N m/rad'
     assert back['frequency_responses'][0]['unit'] == 'm/N'
-    # an LPM std is a standard uncertainty with 12 real degrees of freedom (6 complex
-    # residuals): the 95 % factor is Student's, t(0.975, 12) = 2.179
-    assert back['frequency_responses'][0]['std_degrees_of_freedom'] == 12
-    np.testing.assert_allclose(back['frequency_responses'][0]['coverage_factor_95'], 2.179,
+    # an LPM std is a standard uncertainty with few degrees of freedom (7 complex residuals
+    # for one input: 14 real): the 95 % factor is Student's, t(0.975, 14) = 2.145
+    assert back['frequency_responses'][0]['std_degrees_of_freedom'] == 14
+    np.testing.assert_allclose(back['frequency_responses'][0]['coverage_factor_95'], 2.145,
                                atol=1e-3)
     assert len(back['greybox']['sections']) == 4
 
