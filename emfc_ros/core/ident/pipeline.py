@@ -754,7 +754,7 @@ def _frf_dict(r: FrfResult) -> dict:
         'median_coherence': float(np.nanmedian(frd.coherence)) if frd.coherence.size else None,
         'hold_compensation': frd.details.get('hold_compensation', 'none'),
     }
-    # An LPM std comes from a noise variance of few complex residuals (6 by default, 12 real
+    # An LPM std comes from a noise variance of few complex residuals (6 or 7, 12 or 14 real
     # degrees of freedom): a 95 % interval of the magnitude or the phase needs Student's t
     # with those degrees of freedom, not 1.96 (GUM G.3); both are reported.
     dof = frd.details.get('dof')
