@@ -584,6 +584,12 @@ def bridge_plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
 
     balance = get_str(cfg, 'balance_file', path, default='')
     load = cfg.get('load_mass_kg', 'balance')
+    if load == 'balance' and backend == 'udp' and not start_emulator:
+        # On a real balance the model's balancing mass is a guess, and the identification
+        # needs what is really on the pan (issue 12): the plan declares the mass pieces.
+        raise ConfigError(f'{path}.load_mass_kg', 'on a real device give the mass on the pan '
+                          "[kg] (the mass pieces); 'balance' is the configured model's "
+                          'balancing mass, only meant for the emulator and the sim back-end')
     load_kg = None if load == 'balance' else get_float(cfg, 'load_mass_kg', path, minimum=0.0,
                                                        maximum=2.0)
     return BridgePlan(

@@ -120,6 +120,20 @@ def test_bad_bridge_plans_are_refused_naming_the_key(change, key):
     assert info.value.key == key, info.value
 
 
+def test_a_plan_for_a_real_device_declares_the_mass_on_the_pan():
+    base = Path(config_file('experiment_bridge_emulator.yaml')).parent
+    cfg = _bridge_cfg()
+    cfg['bridge']['start_emulator'] = False
+    cfg['bridge'].pop('emulator', None)
+    cfg['bridge']['load_mass_kg'] = 'balance'
+    with pytest.raises(ConfigError) as info:
+        plan_from_mapping(cfg, base)
+    assert info.value.key == 'run.bridge.load_mass_kg'
+    assert 'mass pieces' in str(info.value)
+    cfg['bridge']['load_mass_kg'] = 0.1
+    assert plan_from_mapping(cfg, base).bridge.load_mass_kg == 0.1
+
+
 def test_bridge_plan_checks_the_emulator_backend_and_the_timeout():
     base = Path(config_file('experiment_bridge_emulator.yaml')).parent
     cfg = _bridge_cfg()
