@@ -1,0 +1,74 @@
+"""
+The mass check of the grey-box verdict against drawn balances and scaled sensors.
+
+No identification runs here: the identified mass matrix is the drawn balance's own (as a
+perfect fit would give it) seen through a sensor of a given gain, which scales every
+mass-matrix entry by ``1 / gain``.
+"""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from emfc_ros.core.ident.balance_result import Derived, MASS_KEYS, Setting, Verdict
+from emfc_ros.core.ident.balance_verdict import check_masses
+from emfc_ros.core.ident.offnominal import draw_balance, TEST_SEEDS
+from emfc_ros.core.model.load import loaded
+from emfc_ros.core.model.mechanics import mass_matrix
+from emfc_ros.core.model.parameters import BalanceParameters
+
+LOAD_KG = 0.1274
+
+
+def identified(params: BalanceParameters, gain: float) -> dict:
+    m = mass_matrix(np.zeros(2), loaded(params.mechanics, LOAD_KG, True)) / gain
+    entries = (m[0, 0], m[0, 1], m[1, 1])
+    return {k: Derived(float(v), 1e-4 * abs(float(v)), u) for (k, u), v in zip(MASS_KEYS, entries)}
+
+
+def verdict_for(truth: BalanceParameters, gain: float, relative_uncertainty: float = 0.05,
+                configured: BalanceParameters = BalanceParameters()) -> Verdict:
+    verdict = Verdict()
+    setting = Setting(configured, LOAD_KG, True, 10000.0)
+    check_masses(identified(truth, gain), setting, relative_uncertainty, verdict)
+    return verdict
+
+
+# seeds the benchmark never uses (TEST_SEEDS and a range of their own)
+SEEDS = TEST_SEEDS + tuple(range(300, 340))
+
+
+@pytest.mark.parametrize('seed', SEEDS)
+def test_a_balance_within_10_percent_passes_the_check(seed):
+    assert verdict_for(draw_balance(seed), 1.0).failures == []
+
+
+@pytest.mark.parametrize('seed', SEEDS)
+@pytest.mark.parametrize('gain', [0.9, 1.1])
+def test_a_sensor_gain_10_percent_off_is_named(seed, gain):
+    failures = verdict_for(draw_balance(seed), gain).failures
+    assert len(failures) == 1
+    assert 'scaled by' in failures[0] and 'gain' in failures[0]
+    # the reported scale is the gain's, within the draws' own spread of the masses
+    shown = float(failures[0].split('scaled by ')[1].split(' %')[0])
+    assert shown == pytest.approx(100.0 * (1.0 / gain - 1.0), abs=4.0)
+
+
+def test_masses_known_worse_widen_the_check():
+    # the same 10 % sensor passes when the user says the masses are known to 30 % only
+    assert verdict_for(draw_balance(SEEDS[0]), 1.1, relative_uncertainty=0.3).failures == []
+
+
+def test_masses_that_contradict_without_a_common_scale_fail_the_consistency_test():
+    truth = BalanceParameters()
+    mech = truth.mechanics
+    # coil mass up, pan-side inertia down: M22 rises while M11 falls, no common scale
+    odd = replace(truth, mechanics=replace(mech, m3_kg=mech.m3_kg * 1.4,
+                                           J1c_kgm2=mech.J1c_kgm2 * 0.5))
+    failures = verdict_for(odd, 1.0).failures
+    assert len(failures) == 1 and 'differs from the configured masses' in failures[0]
+
+
+def test_zero_uncertainty_disables_the_check():
+    assert verdict_for(draw_balance(SEEDS[0]), 1.3, relative_uncertainty=0.0).failures == []
