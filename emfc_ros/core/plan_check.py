@@ -14,7 +14,7 @@ import copy
 from pathlib import Path
 from typing import Any, Dict, Mapping, Sequence
 
-from emfc_ros.core.config import get_bool, join
+from emfc_ros.core.config import get_bool, join, reject_unknown
 from emfc_ros.core.errors import ConfigError
 
 #: Topics the runner and the identification need in the bag (relative to the namespace).
@@ -130,12 +130,14 @@ def check_identification(cfg: Mapping[str, Any], sections: Sequence[str],
 
     if not isinstance(cfg, Mapping):
         raise ConfigError(path, f'expected a mapping, got {cfg!r}')
-    get_bool(cfg, 'enabled', path, default=True)
     for key in PLAN_OWN_KEYS:
         if key in cfg:
             raise ConfigError(join(path, key), 'set by the run: the pan load of the experiment '
                               'is run.simulator.load_mass_kg / load_changer_coupled (or '
                               'run.bridge.*), stored in the bag with the recording')
+    reject_unknown(cfg, ['enabled'] + [k for k in IdentificationConfig.__dataclass_fields__
+                                       if k not in PLAN_OWN_KEYS], path)
+    get_bool(cfg, 'enabled', path, default=True)
     options = {k: v for k, v in cfg.items() if k != 'enabled'}
     config = IdentificationConfig.from_mapping(options, path)
     known = list(sections)
