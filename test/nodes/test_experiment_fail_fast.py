@@ -155,3 +155,24 @@ def test_ctrl_c_while_recording_exits_130_with_one_line_and_a_closed_bag(tmp_pat
     done = int(line.split(' at ')[1].split(' of ')[0])
     assert 0 < done < 1_200_000
     assert not (out / 'summary.md').exists()     # the run did not pretend to finish
+
+
+def test_the_interrupt_line_says_what_was_kept(tmp_path):
+    from emfc_ros.cli.experiment import interrupted_line
+
+    out = tmp_path / 'run'
+    assert interrupted_line(out, {}) == (f'interrupted (Ctrl-C) before recording started; '
+                                         f'nothing recorded ({out} holds the plan only)')
+    bag = out / 'bag'
+    bag.mkdir(parents=True)
+    (bag / 'metadata.yaml').write_text(yaml.safe_dump(
+        {'rosbag2_bagfile_information': {'message_count': 7}}))
+    live = {'bag': str(bag), 'samples': 2500, 'total': 10000, 'sample_rate_Hz': 1000.0}
+    assert interrupted_line(out, live) == (f'interrupted (Ctrl-C) at 2500 of 10000 samples '
+                                           f'(2.50 s of 10.00 s); kept: bag closed, {bag} '
+                                           '(7 messages)')
+    line = interrupted_line(out, dict(live, recorded=True))
+    assert line.startswith('interrupted (Ctrl-C) while identifying; kept: the complete '
+                           f'recording, bag closed, {bag} (7 messages)')
+    (bag / 'metadata.yaml').unlink()
+    assert 'metadata unreadable' in interrupted_line(out, live)
