@@ -1,11 +1,13 @@
 """
-emfc-demo: the main job until the experiment runner exists.
+emfc-demo: play an experiment through the signal_generator node and check the stream (no plant).
 
 Brings up the signal_generator node and a monitor node in one process (a multi-threaded
 executor, real DDS between them), plays the shipped four-section identification
 trajectory as fast as the monitor consumes it, checks that every sample arrived once and in
 order, and writes what the generator produced to an output folder: the samples (NPY and
-CSV), a per-section summary (Markdown and JSON) and a plot (PNG).
+CSV), a per-section summary (Markdown and JSON) and a plot (PNG). The main job, an
+experiment on the simulated balance or a device that is recorded and identified, is
+``emfc-experiment``.
 """
 
 from __future__ import annotations

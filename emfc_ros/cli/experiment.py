@@ -21,9 +21,10 @@ import argparse
 import dataclasses
 import json
 from pathlib import Path
+import signal
 import sys
 import time
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any, Dict, List, Mapping, Optional, Tuple
 
 import yaml
 
@@ -52,6 +53,49 @@ class Phases:
         if self._name is not None:
             self.seconds[self._name] = time.monotonic() - self._t0
             self._name = None
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """Ctrl-C (SIGINT) stopped the run."""
+
+
+class CtrlC:
+    """
+    SIGINT handling of the runner: stop at a clean point, close the bag, say what was kept.
+
+    While the runner polls (``deferred``: its spin loops check :meth:`check` every 20 ms) the
+    handler only records the request, so that no node is cut off in the middle of a callback;
+    otherwise (setting up nodes, reading the bag, identifying) it raises
+    :class:`RunInterrupted` at once. A second Ctrl-C during the clean-up is ignored (the
+    clean-up is short and bounded: the recorder closes its bag).
+    """
+
+    def __init__(self) -> None:
+        self.requested = False
+        self.deferred = False
+        self._previous: Any = None
+
+    def install(self) -> None:
+        """Take over SIGINT (main thread only)."""
+        self._previous = signal.signal(signal.SIGINT, self._handler)
+
+    def restore(self) -> None:
+        """Give SIGINT back to the handler before :meth:`install`."""
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+            self._previous = None
+
+    def _handler(self, signum: int, frame: Any) -> None:
+        if self.requested:
+            return
+        self.requested = True
+        if not self.deferred:
+            raise RunInterrupted()
+
+    def check(self) -> None:
+        """Raise :class:`RunInterrupted` if Ctrl-C was pressed."""
+        if self.requested:
+            raise RunInterrupted()
 
 
 def _progress(text: str) -> None:
@@ -168,7 +212,8 @@ def bag_custom_data(plan: RunPlan, load_kg: float, coupled: bool) -> dict:
                 'source': source}}
 
 
-def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
+def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = None,
+           live: Optional[dict] = None) -> dict:
     """
     Bring up the nodes, play the experiment, record it; return what happened.
 
@@ -180,6 +225,11 @@ def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
         The output folder (created).
     phases : Phases
         Timing of the phases.
+    ctrl_c : CtrlC, optional
+        Ctrl-C handling: checked in every wait; the bag is closed on the way out.
+    live : dict, optional
+        Filled while running (``bag`` once recording, ``samples``, ``total``,
+        ``sample_rate_Hz``), for the report of an interrupted run.
 
     Returns
     -------
@@ -192,10 +242,14 @@ def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
     RuntimeError
         If a node refuses to start, the device does not answer or the experiment does not
         finish in ``plan.timeout_s``.
+    RunInterrupted
+        On Ctrl-C (the bag is closed before it propagates).
     """
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
+    from rclpy.logging import LoggingSeverity
     from rclpy.parameter import Parameter
+    from rclpy.signals import SignalHandlerOptions
     from std_msgs.msg import Float64MultiArray, String
     from std_srvs.srv import Trigger
 
@@ -208,6 +262,8 @@ def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
     from emfc_ros.nodes.signal_generator import SignalGeneratorNode
 
     phases.start('set up nodes')
+    ctrl_c = ctrl_c or CtrlC()
+    live = {} if live is None else live
     on_bridge = plan.target == 'bridge'
     experiment = experiment_from_config(plan.experiment)
     experiment_path = out / 'experiment.yaml'
@@ -226,10 +282,13 @@ def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
     rate = experiment.sample_rate_Hz
     bag = out / 'bag'
     ns = plan.namespace
+    live.update({'total': total, 'sample_rate_Hz': rate, 'samples': 0})
 
     emulator = None
-    rclpy.init()
+    # SIGINT stays with the runner (CtrlC), so that the context lives on to close the bag.
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     nodes = []
+    recorder = None
     try:
         if on_bridge:
             from emfc_ros.nodes.daq_bridge import DaqBridgeNode
@@ -326,6 +385,7 @@ def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
         def spin_until(predicate, timeout_s: float) -> bool:
             deadline = time.monotonic() + timeout_s
             while not predicate():
+                ctrl_c.check()
                 if time.monotonic() > deadline:
                     return False
                 executor.spin_once(timeout_sec=0.02)
@@ -341,11 +401,15 @@ def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
             return future.result()
 
         phases.start('discovery')
+        # From here every wait polls Ctrl-C: a request stops the run at a clean point.
+        ctrl_c.check()
+        ctrl_c.deferred = True
         # The recorder subscribes once recording: start it first, then wait until it and
         # the device node are subscribed to the excitation and the measurements.
         answer = call('recorder/start')
         if not answer.success:
             raise RuntimeError(f'recorder refused to start: {answer.message}')
+        live['bag'] = str(bag)
         wanted = {f'{ns}/{t}' if not t.startswith('/') else t
                   for t in ('excitation', 'measurements')}
 
@@ -386,6 +450,8 @@ def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
         last = 0.0
         clock = 'measured' if on_bridge else 'simulated'
         while measured() < total + settle:
+            live['samples'] = min(measured(), total)
+            ctrl_c.check()
             if time.monotonic() - t0 > plan.timeout_s:
                 raise RuntimeError(f'experiment not finished after {plan.timeout_s} s: '
                                    f'{min(measured(), total)} of {total} samples measured')
@@ -402,6 +468,7 @@ def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
                           f'{seen["status"].get("section") or "-":<32} {clock} '
                           f'{done / rate:6.2f} s of {total / rate:.2f} s, wall '
                           f'{now - t0:5.1f} s')
+        live['samples'] = total
         _progress(f'  100.0 %  {total} samples measured in {time.monotonic() - t0:.1f} s '
                   f'({clock} {total / rate:.1f} s)')
 
@@ -441,8 +508,12 @@ def record(plan: RunPlan, out: Path, phases: Phases) -> dict:
             info['device'] = _device_summary(plan, emulator)
         return info
     finally:
+        ctrl_c.deferred = True          # the clean-up runs to its end
+        if ctrl_c.requested and recorder is not None:
+            # The runner's one line reports the bag; the recorder's own log line would repeat it.
+            recorder.get_logger().set_level(LoggingSeverity.WARN)
         for node in nodes:
-            node.destroy_node()
+            node.destroy_node()         # the recorder closes its bag here
         rclpy.try_shutdown()
         if emulator is not None:
             emulator.stop()
@@ -565,6 +636,43 @@ def _pipeline_progress(step: str, fraction: float, message: str) -> None:
     _progress(f'  identify: {step:<20} {100 * fraction:5.1f} %  {message}')
 
 
+def interrupted_line(out: Path, live: Mapping[str, Any]) -> str:
+    """
+    The one line that says what an interrupted run kept.
+
+    Parameters
+    ----------
+    out : pathlib.Path
+        The output folder.
+    live : Mapping
+        What :func:`record` filled in (``bag``, ``samples``, ``total``, ``sample_rate_Hz``,
+        ``recorded`` once the recording was complete).
+
+    Returns
+    -------
+    str
+        For example ``interrupted (Ctrl-C) at 12000 of 490000 samples (1.20 s of 49.00 s);
+        kept: bag closed, out/x/bag (130 messages)``.
+    """
+    bag = live.get('bag')
+    if not bag:
+        return (f'interrupted (Ctrl-C) before recording started; nothing recorded ({out} '
+                'holds the plan only)')
+    from emfc_ros.core.bag import read_metadata
+    from emfc_ros.core.bag.errors import BagFormatError
+    try:
+        count = f'{int(read_metadata(Path(bag)).get("message_count", 0))} messages'
+    except BagFormatError as exc:
+        count = f'metadata unreadable: {exc}'
+    if live.get('recorded'):
+        return (f'interrupted (Ctrl-C) while identifying; kept: the complete recording, bag '
+                f'closed, {bag} ({count}); identify it with emfc-identify {bag}')
+    rate = float(live.get('sample_rate_Hz') or 1.0)
+    done, total = int(live.get('samples', 0)), int(live.get('total', 0))
+    return (f'interrupted (Ctrl-C) at {done} of {total} samples ({done / rate:.2f} s of '
+            f'{total / rate:.2f} s); kept: bag closed, {bag} ({count})')
+
+
 def main(argv: Optional[List[str]] = None) -> int:
     """
     Entry point of ``emfc-experiment``.
@@ -577,7 +685,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     Returns
     -------
     int
-        0 on success, 1 if the run failed, 2 for a bad plan.
+        0 on success, 1 if the run failed, 2 for a bad plan (nothing started, no output
+        folder), 130 after Ctrl-C (the bag closed and kept).
     """
     parser = argparse.ArgumentParser(prog='emfc-experiment',
                                      description=__doc__.split('\n\n')[0])
@@ -588,7 +697,24 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument('--no-identify', action='store_true',
                         help='stop after recording')
     args = parser.parse_args(argv)
+    ctrl_c = CtrlC()
+    ctrl_c.install()
     try:
+        return _run(args, ctrl_c)
+    except KeyboardInterrupt:
+        # Ctrl-C before the run started (checking the plan): nothing was made.
+        print('emfc-experiment: interrupted (Ctrl-C) before the run started; nothing '
+              'recorded', file=sys.stderr, flush=True)
+        return 130
+    finally:
+        ctrl_c.restore()
+
+
+def _run(args: argparse.Namespace, ctrl_c: CtrlC) -> int:
+    """Check the whole plan, then record and identify; the exit code."""
+    try:
+        # The whole plan, before any node starts or any folder is made: run plan, every
+        # experiment file and signal, the identification options (emfc_ros.core.plan_check).
         plan = load_plan(Path(args.plan) if args.plan else config_file(DEFAULT_PLAN))
         check_bridge_parameters(plan)
     except (ConfigError, FileNotFoundError) as exc:
@@ -596,16 +722,26 @@ def main(argv: Optional[List[str]] = None) -> int:
         return 2
     out = Path(args.out) if args.out else Path('out') / (
         f'{plan.name}-{time.strftime("%Y%m%d-%H%M%S")}')
-    if out.exists() and any(out.iterdir()):
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
         print(f'emfc-experiment: output folder {out} exists and is not empty', file=sys.stderr)
         return 2
     out.mkdir(parents=True, exist_ok=True)
     phases = Phases()
     t0 = time.monotonic()
+    live: Dict[str, Any] = {}
     print(f'emfc-experiment: {plan.name} on the {plan.target}, output {out}', flush=True)
     try:
-        info = record(plan, out, phases)
+        info = record(plan, out, phases, ctrl_c, live)
+        live['recorded'] = True
+        ctrl_c.check()                  # pressed while the nodes were shut down
+        ctrl_c.deferred = False         # identifying: Ctrl-C stops at once
         lines = [] if args.no_identify else identify(plan, info, out, phases)
+    except KeyboardInterrupt:
+        ctrl_c.requested = ctrl_c.deferred = True       # a second Ctrl-C is ignored now
+        phases.stop()
+        (out / 'timing.json').write_text(json.dumps(phases.seconds, indent=2))
+        print(f'emfc-experiment: {interrupted_line(out, live)}', file=sys.stderr, flush=True)
+        return 130
     except (RuntimeError, ConfigError, OSError, ValueError) as exc:
         phases.stop()
         print(f'emfc-experiment: failed: {exc}', file=sys.stderr)

@@ -18,6 +18,9 @@ import yaml
 from emfc_ros.core.config import (flatten, get_bool, get_float, get_int, get_mapping, get_str,
                                   get_str_list, reject_unknown, unflatten)
 from emfc_ros.core.errors import ConfigError
+from emfc_ros.core.plan_check import (check_balance_file, check_experiment,
+                                      check_identification, check_recording_topics,
+                                      resolve_waveform_paths)
 from emfc_ros.core.signals.experiment import DEFAULT_CHANNELS
 from emfc_ros.core.signals.spec import find_experiment_mapping
 
@@ -315,11 +318,17 @@ def plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
             raise ConfigError(f'run.experiment_files[{i}]', f'cannot read {file_path}: '
                               f'{exc}') from exc
         try:
-            mappings.append(unflatten(flatten(find_experiment_mapping(doc, str(file_path)))))
+            mapping = unflatten(flatten(find_experiment_mapping(doc, str(file_path))))
         except ValueError as exc:
             raise ConfigError(f'run.experiment_files[{i}]', f'{file_path}: {exc}') from exc
+        mapping = resolve_waveform_paths(mapping, file_path.parent)
+        # Every section and signal of the file, checked on its own so that an error names
+        # the file (the merged experiment is checked again below).
+        check_experiment(mapping, f'run.experiment_files[{i}] ({file_path})')
+        mappings.append(mapping)
         names.append(str(file_path))
     experiment = merge_experiments(mappings, names)
+    duration_s = check_experiment(experiment, 'run.experiment_files (merged)')
 
     sim_cfg = get_mapping(cfg, 'simulator', path, default={})
     sim_path = f'{path}.simulator'
@@ -330,9 +339,10 @@ def plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
         load_kg = None
     else:
         load_kg = get_float(sim_cfg, 'load_mass_kg', sim_path, minimum=0.0, maximum=2.0)
+    if balance:
+        check_balance_file(_resolve(balance, base_dir), f'{sim_path}.balance_file')
     simulator = SimulatorPlan(
-        balance_file=(Path(balance) if Path(balance).is_absolute() else base_dir / balance)
-        if balance else None,
+        balance_file=_resolve(balance, base_dir) if balance else None,
         load_mass_kg=load_kg,
         load_changer_coupled=get_bool(sim_cfg, 'load_changer_coupled', sim_path, default=True),
         seed=get_int(sim_cfg, 'seed', sim_path, default=0, minimum=0),
@@ -352,7 +362,10 @@ def plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
         max_bag_size_B=get_int(rec_cfg, 'max_bag_size_B', rec_path, default=0, minimum=0),
         max_bag_duration_s=get_float(rec_cfg, 'max_bag_duration_s', rec_path, default=0.0,
                                      minimum=0.0))
+    namespace = get_str(cfg, 'namespace', path, default='/emfc')
+    check_recording_topics(recording.topics, namespace, f'{rec_path}.topics')
     identification = dict(get_mapping(cfg, 'identification', path, default={}))
+    check_identification(identification, experiment['sections'], f'{path}.identification')
     block_size = get_int(cfg, 'block_size', path, default=1000, minimum=1, maximum=1_000_000)
     timeout_s = get_float(cfg, 'timeout_s', path, default=600.0, minimum=1.0)
     bridge = None
@@ -360,7 +373,6 @@ def plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
         bridge = bridge_plan_from_mapping(
             get_mapping(cfg, 'bridge', path), base_dir, experiment, block_size,
             identify=bool(identification.get('enabled', True)))
-        duration_s = _duration_s(experiment)
         if timeout_s <= duration_s + bridge.settle_s:
             raise ConfigError('run.timeout_s', f'{timeout_s} s is too short: on the device '
                               f'the experiment takes {duration_s:g} s of wall time plus '
@@ -368,21 +380,11 @@ def plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
     return RunPlan(
         name=get_str(cfg, 'name', path, default='experiment'),
         target=target,
-        namespace=get_str(cfg, 'namespace', path, default='/emfc'),
+        namespace=namespace,
         experiment=experiment,
         block_size=block_size,
         simulator=simulator, recording=recording, identification=identification,
         timeout_s=timeout_s, source=source, bridge=bridge)
-
-
-def _duration_s(experiment: Mapping[str, Any]) -> float:
-    from emfc_ros.core.signals import experiment_from_config
-    try:
-        built = experiment_from_config(experiment)
-    except ValueError as exc:
-        raise ConfigError('run.experiment_files', f'the merged experiment is invalid: '
-                          f'{exc}') from exc
-    return built.total_samples / built.sample_rate_Hz
 
 
 def _resolve(name: str, base_dir: Path) -> Path:
@@ -583,6 +585,8 @@ def bridge_plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
                           f'carry the {len(inputs)} inputs {list(inputs)}')
 
     balance = get_str(cfg, 'balance_file', path, default='')
+    if balance:
+        check_balance_file(_resolve(balance, base_dir), f'{path}.balance_file')
     load = cfg.get('load_mass_kg', 'balance')
     if load == 'balance' and backend == 'udp' and not start_emulator:
         # On a real balance the model's balancing mass is a guess, and the identification

@@ -65,7 +65,7 @@ from std_srvs.srv import Trigger
 
 from emfc_ros.core.blocks import Channel, StreamDescription
 from emfc_ros.core.config import unflatten
-from emfc_ros.core.control.loop_config import loop_config
+from emfc_ros.core.control.loop_config import loop_config, loop_timing
 from emfc_ros.core.errors import BlockError, ConfigError
 from emfc_ros.core.excitation_queue import ExcitationQueue
 from emfc_ros.core.model.parameters import BalanceParameters
@@ -130,9 +130,10 @@ PARAMETERS = {
                                  'whole multiple'),
     'control.crossover_Hz': (100.0, 'design crossover of the in-loop controller [Hz]'),
     'control.phase_margin_deg': (40.0, 'design phase margin [deg]'),
-    'control.delay_samples': (1.5, 'controller computation and transport delay [controller '
-                                   'samples]; times the simulator samples per controller '
-                                   'sample a whole number >= 1'),
+    'control.delay_samples': (1.0, 'controller computation and transport delay [controller '
+                                   'samples] (the hold adds half a sample); times the '
+                                   'simulator samples per controller sample a whole number '
+                                   '>= 1'),
     'control.notch_Hz': (410.0, 'notch at the lever resonance [Hz]; 0: none'),
     'control.position_setpoint_m': (0.0, 'lever-end position the loop holds [m]'),
 }
@@ -183,14 +184,18 @@ class PlantSimulatorNode(Node):
         self._mode = str(self._param('time_mode'))
         self._names = channel_names(reference=True)
         self._units = channel_units(reference=True)
+        control_error = self._control_error()
         try:
+            if control_error:
+                raise ValueError(control_error)
             self._sim = self._make_simulator()
             self._names = tuple(self._sim.channel_names)
             self._units = tuple(self._sim.channel_units)
         except (ValueError, OSError) as exc:
-            # Keep running: report the reason, accept a corrected balance_file or balance.*.
+            # Keep running: report the reason on /diagnostics (at once, below), accept a
+            # corrected balance_file or balance.*.
             self._sim = None
-            self._error = f'balance configuration refused: {exc}'
+            self._error = control_error or f'balance configuration refused: {exc}'
             self.get_logger().error(self._error)
         else:
             # Compile (or load) the numba kernel now, on a throwaway copy and before any
@@ -249,6 +254,8 @@ class PlantSimulatorNode(Node):
             # Wall-clock (steady) timer: starts the loop and re-publishes an unanswered state.
             self.create_timer(0.005, self._lockstep_tick,
                               clock=RosClock(clock_type=ClockType.STEADY_TIME))
+        if self._error:
+            self._publish_diagnostics()     # the status says why at start, not after 1 s
 
     def _fail(self, reason: str) -> None:
         """Report a configuration error; the node keeps running but does not simulate."""
@@ -299,6 +306,23 @@ class PlantSimulatorNode(Node):
         return BalanceParameters.from_mapping(unflatten(flat)['balance']
                                               if 'balance' in unflatten(flat)
                                               else unflatten(flat))
+
+    def _control_error(self) -> str:
+        """The reason the ``control.*`` parameters do not fit the node, or ''."""
+        flat = {name[len(CONTROL_PREFIX):]: self._param(name) for name in PARAMETERS
+                if name.startswith(CONTROL_PREFIX)}
+        try:
+            loop = loop_config(flat)
+            if loop is not None:
+                loop_timing(loop, self._rate)
+        except ConfigError as exc:
+            return (f'control configuration refused: {exc} (control.* and sample_rate_Hz are '
+                    'fixed at start-up: restart the node with values that fit; '
+                    'docs/closed_loop.md)')
+        if loop is not None and self._mode == 'lockstep':
+            return ('control configuration refused: control.enabled: the in-loop controller '
+                    'and the lockstep mode (an external controller) exclude each other')
+        return ''
 
     def _make_simulator(self, overrides: Optional[List[Parameter]] = None):
         substeps = int(self._param('substeps'))

@@ -8,9 +8,11 @@ parameters of a node) with every error naming the dotted key.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Mapping, Optional
+import math
+from typing import Any, Mapping, Optional, Tuple
 
 from emfc_ros.core.config import get_bool, get_float, get_int, reject_unknown
+from emfc_ros.core.errors import ConfigError
 
 CONTROL_KEYS = ('enabled', 'rate_Hz', 'crossover_Hz', 'phase_margin_deg', 'delay_samples',
                 'notch_Hz', 'notch_quality', 'position_setpoint_m', 'design_load_mass_kg')
@@ -32,7 +34,11 @@ class LoopConfig:
         Design phase margin [deg].
     delay_samples : float
         Computation and transport delay [controller samples]; times the simulator samples per
-        controller sample it must be a whole number >= 1.
+        controller sample it must be a whole number >= 1. Default 1: the controller reads
+        the ADC at one sample and writes the DAC at the next, as on the device's FPGA; with
+        the hold's half sample, which the design adds, the loop has the 1.5 samples of delay
+        of the model notes (``docs/closed_loop.md``), and it fits any simulator rate that is
+        a multiple of the controller's, the equal default rates of 10 kHz included.
     notch_Hz : float or None
         Notch centre [Hz] (the 410 Hz mode), None for none.
     notch_quality : float
@@ -46,7 +52,7 @@ class LoopConfig:
     rate_Hz: float = 10000.0
     crossover_Hz: float = 50.0
     phase_margin_deg: float = 40.0
-    delay_samples: float = 1.5
+    delay_samples: float = 1.0
     notch_Hz: Optional[float] = None
     notch_quality: float = 5.0
     position_setpoint_m: float = 0.0
@@ -129,6 +135,58 @@ def loop_config(cfg: Mapping[str, Any], path: str = 'control') -> Optional[LoopC
         design_load_mass_kg=get_float(cfg, 'design_load_mass_kg', path,
                                       default=d.design_load_mass_kg, minimum=0.0,
                                       maximum=2.0))
+
+
+def loop_timing(config: LoopConfig, sample_rate_Hz: float,
+                path: str = 'control') -> Tuple[int, int]:
+    """
+    Check that a loop fits a simulator's (or a device's) sample clock.
+
+    The simulator's rate must be a whole multiple ``M`` of the controller's, and the delay a
+    whole number of simulator samples, at least one: ``delay_samples * M``.
+
+    Parameters
+    ----------
+    config : LoopConfig
+        The loop.
+    sample_rate_Hz : float
+        The simulator's sample rate [Hz] (the node's ``sample_rate_Hz``).
+    path : str
+        Dotted path of the loop's keys, for messages.
+
+    Returns
+    -------
+    ratio : int
+        Simulator samples per controller sample, ``M``.
+    delay_sim_samples : int
+        The delay [simulator samples].
+
+    Raises
+    ------
+    ConfigError
+        Naming ``<path>.rate_Hz`` or ``<path>.delay_samples``, the rates involved and values
+        that fit.
+    """
+    fs = float(sample_rate_Hz)
+    ratio = fs / config.rate_Hz
+    if ratio < 1.0 - 1e-9 or abs(ratio - round(ratio)) > 1e-9:
+        raise ConfigError(f'{path}.rate_Hz', f'{config.rate_Hz:g} Hz must divide the simulator '
+                          f'rate sample_rate_Hz = {fs:g} Hz (a whole number of simulator '
+                          f'samples per controller sample)')
+    m = int(round(ratio))
+    delay = config.delay_samples * m
+    if delay < 1.0 - 1e-9 or abs(delay - round(delay)) > 1e-9:
+        fits = sorted({max(1, math.floor(delay)) / m, max(1, math.ceil(delay)) / m})
+        k = next((k for k in range(1, 101) if abs(config.delay_samples * k - round(
+            config.delay_samples * k)) < 1e-9 and config.delay_samples * k >= 1.0), None)
+        rate_hint = (f', or sample_rate_Hz = {k * config.rate_Hz:g} Hz' if k is not None
+                     else '')
+        raise ConfigError(f'{path}.delay_samples', f'{config.delay_samples:g} controller samples '
+                          f'at {path}.rate_Hz = {config.rate_Hz:g} Hz is {delay:g} samples of '
+                          f'the simulator at sample_rate_Hz = {fs:g} Hz; it must be a whole '
+                          f'number >= 1: use {path}.delay_samples = '
+                          f'{" or ".join(f"{v:g}" for v in fits)}{rate_hint}')
+    return m, int(round(delay))
 
 
 def current_channel_config(cfg: Mapping[str, Any],

@@ -28,7 +28,7 @@ from typing import Callable, Optional, Tuple
 import numpy as np
 
 from emfc_ros.core.control.design import ControllerDesign, design_controller, plant_from_model
-from emfc_ros.core.control.loop_config import CurrentChannelConfig, LoopConfig
+from emfc_ros.core.control.loop_config import CurrentChannelConfig, loop_timing, LoopConfig
 from emfc_ros.core.control.runtime import controller_step, initial_state, pack_controller
 from emfc_ros.core.model.linear import linearise
 from emfc_ros.core.model.load import loaded
@@ -213,17 +213,7 @@ class ClosedLoopSimulator:
         self.sim = simulator
         self.config = config
         self.current_channel = current_channel or CurrentChannelConfig()
-        ratio = simulator.sample_rate_Hz / config.rate_Hz
-        if ratio < 1.0 - 1e-9 or abs(ratio - round(ratio)) > 1e-9:
-            raise ValueError(f'control.rate_Hz: {config.rate_Hz} Hz must divide the simulator '
-                             f'rate {simulator.sample_rate_Hz} Hz')
-        self.ratio = int(round(ratio))
-        delay = config.delay_samples * self.ratio
-        if delay < 1.0 - 1e-9 or abs(delay - round(delay)) > 1e-9:
-            raise ValueError(f'control.delay_samples: {config.delay_samples} controller samples '
-                             f'is {delay:g} simulator samples; it must be a whole number >= 1 '
-                             f'(raise the simulator rate or change the delay)')
-        self.delay_sim_samples = int(round(delay))
+        self.ratio, self.delay_sim_samples = loop_timing(config, simulator.sample_rate_Hz)
         self.design = design if design is not None else design_for(simulator, config)
         if abs(self.design.controller.sample_rate_Hz - config.rate_Hz) > 1e-9 * config.rate_Hz:
             raise ValueError('design: the controller runs at '
