@@ -437,7 +437,8 @@ def plot_pole_zero(result: Any, path: Union[str, Path]) -> Optional[Path]:
             ax.plot(z.real, z.imag, zmark, ms=11 if zmark == 's' else 7, mfc='none', mew=1.2,
                     color=color, label=f'{label}: zeros')
     vals = np.abs(np.concatenate([np.real(every), np.imag(every)]))
-    vals = vals[vals > 0.0]
+    # round-off parts (a real root's 1e-12 imaginary part) must not set the linear range
+    vals = vals[vals > 1e-6 * vals.max()] if vals.size else vals
     thresh = float(10 ** np.floor(np.log10(vals.min()))) if vals.size else 1.0
     ax.set_xscale('symlog', linthresh=thresh)
     ax.set_yscale('symlog', linthresh=thresh)
