@@ -144,6 +144,10 @@ def test_models_mat_matches_results_yaml(report):
     np.testing.assert_array_equal(doc['greybox_linearised']['state_space']['A'], a)
     assert [t['name'] for t in doc['transfer_function_fits']] == [r['name'] for r in fits]
     assert 'rad/s' in doc['greybox_linearised']['state_space']['units']
+    assert all('m/N' in t['state_space']['units'] for t in doc['transfer_function_fits'])
+    for t in doc['transfer_function_fits']:
+        s = m['tf_' + t['name'].replace('.', '_')]
+        np.testing.assert_array_equal(np.atleast_2d(s['A']), t['state_space']['A'])
 
 
 def test_frf_csv_and_npz_round_trip(report):

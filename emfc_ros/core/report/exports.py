@@ -387,9 +387,11 @@ def _tf_model(frf: Any) -> Dict[str, Any]:
         'zeros_rad_per_s': _roots_plain([z.s_rad_per_s for z in c.zeros]),
         'stable': bool(c.is_stable),
         'state_space': {
-            'form': 'controllable canonical (scipy.signal.tf2ss); states without physical '
-                    'unit', 'A_1_per_s': _matrix(a), 'B': _matrix(b),
-            'C_m_per_N': _matrix(cc), 'D_m_per_N': _matrix(d)},
+            'form': 'controllable canonical (scipy.signal.tf2ss)',
+            'units': 'the states of this form have no physical unit; input force N, output '
+                     'lever-end position m, time in s: the map from input to output is the '
+                     'transfer function in m/N',
+            'A': _matrix(a), 'B': _matrix(b), 'C': _matrix(cc), 'D': _matrix(d)},
     }
 
 
@@ -490,13 +492,13 @@ def models_mat_variables(result: Any) -> Dict[str, Any]:
             'Numerator': np.array(tf['numerator_s_rad_per_s'], dtype=float).reshape(1, -1),
             'Denominator': np.array(tf['denominator_s_rad_per_s'], dtype=float).reshape(1, -1),
             'Poles': _complex(tf['poles_rad_per_s']), 'Zeros': _complex(tf['zeros_rad_per_s']),
-            'A': np.array(ss['A_1_per_s']), 'B': np.array(ss['B']),
-            'C': np.array(ss['C_m_per_N']), 'D': np.array(ss['D_m_per_N']),
+            'A': np.array(ss['A']), 'B': np.array(ss['B']),
+            'C': np.array(ss['C']), 'D': np.array(ss['D']),
             'Stable': tf['stable'],
             'Units': {'Numerator': 'm/N with s in rad/s, highest power first',
                       'Denominator': 'monic, s in rad/s, highest power first',
                       'Poles': 'rad/s', 'Zeros': 'rad/s',
-                      'StateSpace': ss['form'] + '; C and D in m/N, A in 1/s'},
+                      'StateSpace': ss['form'] + '; ' + ss['units']},
         }
     g = models['greybox_linearised']
     if g is not None:
