@@ -93,6 +93,30 @@ def test_frf_mat_matches_results_yaml(report):
         np.testing.assert_array_equal(m['ResponseData'].ravel(), frf.frd.response)
 
 
+def test_two_input_section_as_one_idfrd(report):
+    _, out, written, results = report
+    sections = sorted({r['section'] for r in results['frequency_responses'] if r['two_input']})
+    assert len(sections) == 2
+    for section in sections:
+        path = out / f'frf_{section}.mat'
+        assert path in written['exports']
+        m = sio.loadmat(path, simplify_cells=True)
+        coil = sio.loadmat(out / f'frf_{section}.coil.mat', simplify_cells=True)
+        pan = sio.loadmat(out / f'frf_{section}.pan.mat', simplify_cells=True)
+        n = coil['Frequency'].size
+        assert m['ResponseData'].shape == (2, n) or m['ResponseData'].shape == (1, 2, n)
+        h = np.reshape(m['ResponseData'], (1, 2, n))
+        np.testing.assert_array_equal(h[0, 0], coil['ResponseData'])
+        np.testing.assert_array_equal(h[0, 1], pan['ResponseData'])
+        cov = np.reshape(m['CovarianceData'], (1, 2, n, 2, 2))
+        np.testing.assert_array_equal(cov[0, 1], pan['CovarianceData'])
+        assert list(m['InputName']) == ['coil force', 'pan force']
+        assert list(m['InputUnit']) == ['N', 'N'] and m['OutputUnit'] == 'm'
+        np.testing.assert_array_equal(m['Coherence'][:, 1], pan['Coherence'])
+    raw = sio.loadmat(out / f'frf_{sections[0]}.mat')
+    assert raw['ResponseData'].shape == (1, 2, raw['Frequency'].size)
+
+
 def test_models_mat_matches_results_yaml(report):
     _, out, _, results = report
     m = sio.loadmat(out / 'models.mat', simplify_cells=True)

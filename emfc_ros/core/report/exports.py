@@ -11,7 +11,9 @@ Per FRF ``<section>.<input>`` of :class:`~emfc_ros.core.ident.pipeline.Identific
   (``Frequency``, ``ResponseData``, ``CovarianceData``, ``Ts``, ``FrequencyUnit``,
   ``InputName``, ``InputUnit``, ``OutputName``, ``OutputUnit``) plus ``Coherence``,
   ``ResponseStd``, the models' responses and a ``Units`` struct, so that
-  ``idfrd(ResponseData, Frequency, Ts, 'FrequencyUnit', FrequencyUnit)`` rebuilds it.
+  ``idfrd(ResponseData, Frequency, Ts, 'FrequencyUnit', FrequencyUnit)`` rebuilds it;
+* per two-input section also ``frf_<section>.mat``: both FRFs of the joint solve as one
+  ``1 x 2`` ``idfrd`` (inputs coil and pan force).
 
 The fitted models (every transfer-function fit chosen by order selection and the grey-box
 model's linearisation) go to ``models.mat`` and ``models.yaml`` as transfer-function
@@ -359,6 +361,76 @@ def write_frf_mat(frf: Any, path: Union[str, Path], sample_rate_Hz: float) -> Pa
     return path
 
 
+def two_input_mat_variables(coil: Any, pan: Any, sample_rate_Hz: float) -> Dict[str, Any]:
+    """
+    The MATLAB variables of a two-input section: one ``idfrd`` with inputs coil and pan force.
+
+    ``ResponseData`` is ``1 x 2 x Nf`` and ``CovarianceData`` ``1 x 2 x Nf x 2 x 2`` (each
+    entry's own real/imaginary covariance; the covariance between the two entries is not
+    estimated). ``Coherence``, ``ResponseStd`` and the model responses get one column (or
+    second index) per input.
+
+    Parameters
+    ----------
+    coil, pan : FrfResult
+        The section's two FRFs from the joint solve (same frequency lines).
+    sample_rate_Hz : float
+        Sample rate of the recording [Hz].
+
+    Returns
+    -------
+    dict
+        Variable name to value, ready for :func:`scipy.io.savemat`.
+
+    Raises
+    ------
+    ExportError
+        If the two FRFs are not of one section on the same lines.
+    """
+    if (coil.section != pan.section or coil.input != 'coil' or pan.input != 'pan'
+            or not np.array_equal(coil.frd.frequency_Hz, pan.frd.frequency_Hz)):
+        raise ExportError(f'{coil.name} and {pan.name} are not the coil and pan FRFs of one '
+                          f'section on the same frequency lines')
+    a = frf_mat_variables(coil, sample_rate_Hz)
+    b = frf_mat_variables(pan, sample_rate_Hz)
+    out = dict(a)
+    for key in ('ResponseData', 'CovarianceData', 'TfFitResponseData', 'GreyboxResponseData'):
+        out[key] = np.concatenate((a[key], b[key]), axis=1)
+    for key in ('Coherence', 'ResponseStd'):
+        out[key] = np.hstack((a[key], b[key]))
+    out.update({'InputName': _cell([INPUT_TEXT['coil'], INPUT_TEXT['pan']]),
+                'InputUnit': _cell(['N', 'N']), 'Name': coil.section,
+                'Notes': a['Notes'] + ' Two inputs (coil force, pan force) from the joint '
+                                      'solve: ResponseData(1,j,k) is input j at line k; '
+                                      'Coherence and ResponseStd have one column per input.'})
+    return out
+
+
+def write_two_input_mat(coil: Any, pan: Any, path: Union[str, Path],
+                        sample_rate_Hz: float) -> Path:
+    """
+    Write a two-input section as one MATLAB ``.mat`` of :func:`two_input_mat_variables`.
+
+    Parameters
+    ----------
+    coil, pan : FrfResult
+        The section's coil and pan FRFs.
+    path : str or Path
+        File to write.
+    sample_rate_Hz : float
+        Sample rate of the recording [Hz].
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    path = Path(path)
+    sio.savemat(path, two_input_mat_variables(coil, pan, sample_rate_Hz), oned_as='column',
+                do_compression=True)
+    return path
+
+
 # ---------------------------------------------------------------- models
 
 
@@ -589,5 +661,15 @@ def write_exports(result: Any, out_dir: Union[str, Path],
         written.append(write_frf_csv(frf, out / f'{stem}.csv'))
         written.append(write_frf_npz(frf, out / f'{stem}.npz'))
         written.append(write_frf_mat(frf, out / f'{stem}.mat', fs))
+    pairs: Dict[str, Dict[str, Any]] = {}
+    for frf in result.frfs:
+        if frf.two_input:
+            pairs.setdefault(frf.section, {})[frf.input] = frf
+    for section, pair in pairs.items():
+        same_lines = set(pair) == {'coil', 'pan'} and np.array_equal(
+            pair['coil'].frd.frequency_Hz, pair['pan'].frd.frequency_Hz)
+        if same_lines:
+            written.append(write_two_input_mat(pair['coil'], pair['pan'],
+                                               out / f'frf_{file_stem(section)}.mat', fs))
     written += write_models(result, out)
     return written
