@@ -303,7 +303,7 @@ def plot_residuals(analysis: ResidualAnalysis, path: Union[str, Path]) -> Path:
         The file written.
     """
     plt = _pyplot()
-    panels = [('residual autocorrelation', analysis.autocorrelation)]
+    panels = [('residual autocorrelation, lags from 1', analysis.autocorrelation)]
     panels += [(f'residual x {name}', test) for name, test in
                analysis.cross_correlations.items()]
     fig, axes = plt.subplots(len(panels), 1, figsize=(8.0, 2.6 * len(panels) + 0.6),
