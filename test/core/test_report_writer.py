@@ -39,8 +39,13 @@ def test_report_files(tmp_path):
     data = yaml.safe_load((tmp_path / 'out' / 'results.yaml').read_text())
     tf = data['frequency_responses'][0]['transfer_function']
     np.testing.assert_allclose(tf['resonances'][0]['frequency_Hz'], mode.frequency_Hz)
-    assert [p.name for p in written['plots']] == ['bode_coil_chirp.coil.png']
-    assert written['plots'][0].read_bytes()[:4] == b'\x89PNG'
+    assert [p.name for p in written['plots']] == ['bode_coil_chirp.coil.png',
+                                                  'coherence_coil_chirp.coil.png',
+                                                  'pole_zero.png']
+    assert all(p.read_bytes()[:4] == b'\x89PNG' for p in written['plots'])
+    assert [p.name for p in written['exports']] == [
+        'frf_coil_chirp.coil.csv', 'frf_coil_chirp.coil.npz', 'frf_coil_chirp.coil.mat',
+        'models.yaml', 'models.mat']
     text = (tmp_path / 'out' / 'summary.md').read_text()
     assert 'coil_chirp.coil' in text and 'bode_coil_chirp.coil.png' in text
 
@@ -59,6 +64,8 @@ def test_report_without_matplotlib(tmp_path, monkeypatch):
     written = write_report(res, tmp_path)
     assert written['plots'] == []
     assert 'matplotlib is not installed' in (tmp_path / 'summary.md').read_text()
+    # the exports need no matplotlib
+    assert (tmp_path / 'frf_coil_chirp.coil.mat').stat().st_size > 0
     assert (tmp_path / 'results.yaml').exists()
 
 

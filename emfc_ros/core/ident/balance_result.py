@@ -78,6 +78,9 @@ class BalanceGreyboxResult:
         Per section: time from the section start [s].
     measured_m, simulated_m : dict of str to ndarray
         Per section: measured and simulated position [m].
+    inputs_V : dict of str to ndarray
+        Per section: the model's inputs, shape ``(n, 2)``: coil and load-changer setpoints
+        [V] (for the residual-input correlation).
     """
 
     fit: GreyboxResult
@@ -91,6 +94,7 @@ class BalanceGreyboxResult:
     time_s: Dict[str, np.ndarray] = field(default_factory=dict)
     measured_m: Dict[str, np.ndarray] = field(default_factory=dict)
     simulated_m: Dict[str, np.ndarray] = field(default_factory=dict)
+    inputs_V: Dict[str, np.ndarray] = field(default_factory=dict)
 
 
 @dataclass

@@ -130,10 +130,14 @@ class StaticResult:
         ``coil_amplifier``, ``load_changer_amplifier``, ``load_changer`` (as available).
     n_plateaus : dict of str to int
         Plateaus behind each fit.
+    points : dict of str to (ndarray, ndarray)
+        The plateau means behind each fit, ``(x, y)`` in the fit's units (``U`` [V] and
+        ``I`` [A] for the amplifiers, ``I`` [A] and ``F`` [N] for the load changer).
     """
 
     fits: Dict[str, PolynomialFit] = field(default_factory=dict)
     n_plateaus: Dict[str, int] = field(default_factory=dict)
+    points: Dict[str, Tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
 
 @dataclass
@@ -612,6 +616,7 @@ def _static_step(result: IdentificationResult, channels: Mapping[str, np.ndarray
             static.fits[key] = fit_polynomial(np.array(xm), np.array(ym), degree,
                                               x_name=xs, y_name=ys, x_unit=xu, y_unit=yu)
         static.n_plateaus[key] = len(xm)
+        static.points[key] = (np.array(xm), np.array(ym))
         if key == 'load_changer_amplifier' and pan_force is not None:
             im, fm = [], []
             for span in chosen:
@@ -627,6 +632,7 @@ def _static_step(result: IdentificationResult, channels: Mapping[str, np.ndarray
                         np.array(im), np.array(fm), cfg.load_changer_degree, x_name='I',
                         y_name='F', x_unit='A', y_unit='N')
                 static.n_plateaus['load_changer'] = len(im)
+                static.points['load_changer'] = (np.array(im), np.array(fm))
     if not static.fits:
         result.warnings.append('static: no staircase with enough distinct levels')
     result.static = static
@@ -668,6 +674,10 @@ def _greybox_step(result: IdentificationResult, channels: Mapping[str, np.ndarra
     for r in result.frfs:
         r.model_response = out.linear_model.frequency_response(
             r.frd.frequency_Hz, r.input).response_m_per_N
+    for s in chosen:
+        if s.name in out.time_s:
+            out.inputs_V[s.name] = np.column_stack((channels['coil_setpoint_V'][s.slice],
+                                                    channels['load_changer_setpoint_V'][s.slice]))
     result.greybox = out
     report('greybox', 1.0, f'grey-box fit done ({out.fit.optimizer_evaluations} evaluations)')
 

@@ -1,15 +1,23 @@
 """
-Plots of an identification result: Bode diagrams and time series (matplotlib, Agg backend).
+Plots of an identification result (matplotlib, Agg backend).
+
+Bode diagrams, coherence, measured and simulated time series, residual analysis (MATLAB
+``resid``), static characteristics with residuals and the pole-zero map.
 
 Matplotlib is imported lazily; :func:`matplotlib_available` tells whether it can be used.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Optional, Union
+from typing import Any, Dict, Optional, Union
 
 import numpy as np
+
+from emfc_ros.core.ident.errors import IdentificationError
+from emfc_ros.core.ident.metrics import (CorrelationTest, input_correlation_test,
+                                         whiteness_test)
 
 #: Confidence level of the FRF bands.
 CONFIDENCE = 0.95
@@ -139,9 +147,15 @@ def plot_time_series(greybox: Any, section: str, path: Union[str, Path],
     fit = next((s for s in greybox.fit.sections if s.name == section), None)
     fig, (ax, ax_e) = plt.subplots(2, 1, sharex=True, figsize=(9.0, 5.5),
                                    gridspec_kw={'height_ratios': [3, 1]})
-    ax.plot(t[::step], 1e6 * y[::step], lw=0.6, color='C0', label='measured')
-    ax.plot(t[::step], 1e6 * yh[::step], lw=0.6, color='C1', label='simulated (grey-box)')
-    ax_e.plot(t[::step], 1e9 * (y - yh)[::step], lw=0.5, color='C3')
+    # measured drawn wide and light underneath, simulated thin and dashed on top: both
+    # stay visible where they coincide
+    ax.plot(t[::step], 1e6 * y[::step], lw=2.4, color='C0', alpha=0.45, zorder=2,
+            solid_capstyle='butt', label='measured')
+    ax.plot(t[::step], 1e6 * yh[::step], lw=0.8, color='k', ls=(0, (4, 2)), zorder=3,
+            label='simulated (grey-box)')
+    ax_e.plot(t[::step], 1e9 * (y - yh)[::step], lw=0.5, color='C3',
+              label='measured - simulated')
+    ax_e.legend(loc='upper right', fontsize=8)
     ax.set_ylabel('position [um]')
     ax_e.set_ylabel('error [nm]')
     ax_e.set_xlabel('time from section start [s]')
@@ -150,6 +164,291 @@ def plot_time_series(greybox: Any, section: str, path: Union[str, Path],
     ax.legend(loc='upper right', fontsize=8)
     ax.grid(True, alpha=0.3)
     ax_e.grid(True, alpha=0.3)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_coherence(frf: Any, path: Union[str, Path]) -> Path:
+    """
+    Coherence of a measured FRF over frequency.
+
+    Parameters
+    ----------
+    frf : FrfResult
+        One FRF of the result.
+    path : str or Path
+        PNG file to write.
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    plt = _pyplot()
+    frd = frf.frd
+    f = np.asarray(frd.frequency_Hz, dtype=float)
+    coh = np.asarray(frd.coherence, dtype=float)
+    ok = np.isfinite(coh)
+    fig, ax = plt.subplots(figsize=(8.0, 3.5))
+    kind = 'multiple' if frf.two_input else 'ordinary'
+    ax.semilogx(f[ok], coh[ok], '.-', ms=2, lw=0.5, color='C0',
+                label=f'{kind} coherence ({frd.estimator})')
+    if not np.any(ok):
+        ax.text(0.5, 0.5, f'the {frd.estimator} estimator gives no coherence',
+                transform=ax.transAxes, ha='center', va='center')
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_xlabel('frequency [Hz]')
+    ax.set_ylabel('coherence [1]')
+    ax.set_title(f'{frf.name}: coherence of position and force')
+    ax.grid(True, which='both', alpha=0.3)
+    ax.legend(loc='lower left', fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+@dataclass(frozen=True)
+class ResidualAnalysis:
+    """
+    Residual correlations of one grey-box section, as MATLAB ``resid`` shows them.
+
+    Attributes
+    ----------
+    section : str
+        Section name.
+    autocorrelation : CorrelationTest
+        Normalised autocorrelation of ``measured - simulated`` position at lags
+        ``0..max_lag`` [samples] (1 at lag 0) and the band ``z / sqrt(N)``.
+    cross_correlations : dict of str to CorrelationTest
+        Per varied model input (``'coil setpoint'``, ``'load-changer setpoint'``):
+        normalised cross-correlation of residual and input at lags ``-max_lag..max_lag``.
+    sample_period_s : float
+        Duration of one lag [s].
+    confidence : float
+        Two-sided confidence level of the bands.
+    """
+
+    section: str
+    autocorrelation: CorrelationTest
+    cross_correlations: Dict[str, CorrelationTest]
+    sample_period_s: float
+    confidence: float
+
+
+def residual_analysis(greybox: Any, section: str, max_lag: int = 25,
+                      confidence: float = CONFIDENCE) -> Optional[ResidualAnalysis]:
+    """
+    Residual auto- and cross-correlation of one section with their confidence bands.
+
+    Parameters
+    ----------
+    greybox : BalanceGreyboxResult
+        The grey-box result (per-section measured, simulated position and inputs).
+    section : str
+        Section name.
+    max_lag : int
+        Largest lag [samples] (MATLAB ``resid``'s default 25).
+    confidence : float
+        Two-sided confidence level of the bands (0.95 by default; MATLAB ``resid`` uses 0.99).
+
+    Returns
+    -------
+    ResidualAnalysis or None
+        None when the residual is too short or identically zero.
+    """
+    e = np.asarray(greybox.measured_m[section], dtype=float) - np.asarray(
+        greybox.simulated_m[section], dtype=float)
+    try:
+        white = whiteness_test(e, max_lag, confidence)
+    except IdentificationError:
+        return None
+    auto = CorrelationTest(np.concatenate(([0], white.lags)),
+                           np.concatenate(([1.0], white.values)), white.bound,
+                           white.fraction_inside)
+    cross = {}
+    u = getattr(greybox, 'inputs_V', {}).get(section)
+    if u is not None:
+        u = np.asarray(u, dtype=float).reshape(e.size, -1)
+        for j, name in enumerate(('coil setpoint', 'load-changer setpoint')[:u.shape[1]]):
+            if np.ptp(u[:, j]) > 0.0:
+                cross[name] = input_correlation_test(e, u[:, j], max_lag, confidence)
+    t = np.asarray(greybox.time_s[section], dtype=float)
+    dt = float(t[1] - t[0]) if t.size > 1 else float('nan')
+    return ResidualAnalysis(section, auto, cross, dt, confidence)
+
+
+def plot_residuals(analysis: ResidualAnalysis, path: Union[str, Path]) -> Path:
+    """
+    Residual autocorrelation and residual-input cross-correlations with their bands.
+
+    Laid out as MATLAB ``resid``: the autocorrelation of the residual on top, below one
+    panel per varied input with the cross-correlation (positive lags: the residual lags the
+    input); the shaded region is the confidence band ``+/- z / sqrt(N)``.
+
+    Parameters
+    ----------
+    analysis : ResidualAnalysis
+        From :func:`residual_analysis`.
+    path : str or Path
+        PNG file to write.
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    plt = _pyplot()
+    panels = [('residual autocorrelation, lags from 1', analysis.autocorrelation)]
+    panels += [(f'residual x {name}', test) for name, test in
+               analysis.cross_correlations.items()]
+    fig, axes = plt.subplots(len(panels), 1, figsize=(8.0, 2.6 * len(panels) + 0.6),
+                             squeeze=False)
+    pct = f'{100 * analysis.confidence:.0f} %'
+    for ax, (label, test) in zip(axes[:, 0], panels):
+        lags = np.asarray(test.lags)
+        ax.axhspan(-test.bound, test.bound, color='C0', alpha=0.2, lw=0,
+                   label=f'{pct} confidence band')
+        ax.vlines(lags, 0.0, test.values, color='C1', lw=1.2)
+        ax.plot(lags, test.values, 'o', ms=3, color='C1',
+                label=f'{label} ({100 * test.fraction_inside:.0f} % of lags inside)')
+        ax.axhline(0.0, color='k', lw=0.5)
+        ax.set_ylabel('normalised correlation [1]')
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc='best', fontsize=8)
+    axes[-1, 0].set_xlabel(f'lag [samples of {1e3 * analysis.sample_period_s:.4g} ms]')
+    axes[0, 0].set_title(f'{analysis.section}: residual analysis (measured - simulated '
+                         f'position)')
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+STATIC_TITLES = {'coil_amplifier': 'coil amplifier I(U)',
+                 'load_changer_amplifier': 'load-changer amplifier I(U)',
+                 'load_changer': 'load changer F(I)'}
+
+
+def plot_static_fit(key: str, fit: Any, x: np.ndarray, y: np.ndarray,
+                    path: Union[str, Path]) -> Path:
+    """
+    A static characteristic: plateau means, the fitted polynomial and the residuals.
+
+    Parameters
+    ----------
+    key : str
+        ``coil_amplifier``, ``load_changer_amplifier`` or ``load_changer``.
+    fit : PolynomialFit
+        The fitted polynomial.
+    x, y : ndarray
+        Plateau means in the fit's units (``fit.x_unit``, ``fit.y_unit``).
+    path : str or Path
+        PNG file to write.
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    plt = _pyplot()
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    grid = np.linspace(float(x.min()), float(x.max()), 400)
+    fig, (ax, ax_r) = plt.subplots(2, 1, sharex=True, figsize=(8.0, 5.5),
+                                   gridspec_kw={'height_ratios': [3, 1.3]})
+    ax.plot(x, y, 'o', ms=4, color='C0', label=f'plateau means ({x.size})')
+    ax.plot(grid, fit(grid), '-', color='C1', lw=1.0,
+            label=f'{fit.formula()} (R^2 {fit.r_squared:.6f})')
+    res = y - fit(x)
+    ax_r.axhspan(-2 * fit.residual_std, 2 * fit.residual_std, color='C1', alpha=0.15, lw=0,
+                 label='+/- 2 residual std')
+    ax_r.plot(x, res, 'o', ms=3, color='C3', label='plateau mean - fit')
+    ax_r.axhline(0.0, color='k', lw=0.5)
+    ax.set_ylabel(f'{fit.y_name} [{fit.y_unit}]')
+    ax_r.set_ylabel(f'residual [{fit.y_unit}]')
+    ax_r.set_xlabel(f'{fit.x_name} [{fit.x_unit}]')
+    ax.set_title(f'static characteristic: {STATIC_TITLES.get(key, key)}')
+    for a in (ax, ax_r):
+        a.grid(True, alpha=0.3)
+        a.legend(loc='best', fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_pole_zero(result: Any, path: Union[str, Path]) -> Optional[Path]:
+    """
+    Pole-zero map of every transfer-function fit and of the grey-box linearisation.
+
+    Real and imaginary parts are shown divided by 2 pi, in Hz, on symmetric logarithmic axes
+    (the balance's modes lie decades apart). Transfer-function fits: poles crosses, zeros
+    circles; grey-box linearisation: poles plus signs, zeros squares.
+
+    Parameters
+    ----------
+    result : IdentificationResult
+        The pipeline's result.
+    path : str or Path
+        PNG file to write.
+
+    Returns
+    -------
+    Path or None
+        The file written; None when there is no model.
+    """
+    # (label, poles, zeros, pole marker, zero marker); the grey-box model's poles are shared
+    # by both inputs and drawn once
+    models = []
+    for r in result.frfs:
+        if r.fit is not None:
+            c = r.fit.chosen
+            models.append((f'TF fit {r.name} ({c.numerator_order}/{c.denominator_order})',
+                           [p.s_rad_per_s for p in c.poles], [z.s_rad_per_s for z in c.zeros],
+                           'x', 'o'))
+    if result.greybox is not None:
+        lin = result.greybox.linear_model
+        models.append(('grey-box linearised', [p.s_rad_per_s for p in lin.poles()], [],
+                       '+', 's'))
+        for name in ('coil', 'pan'):
+            models.append((f'grey-box linearised, {name}', [],
+                           [z.s_rad_per_s for z in lin.zeros(name)], '+', 's'))
+    if not models:
+        return None
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(8.0, 6.5))
+    every = []
+    for k, (label, poles, zeros, pmark, zmark) in enumerate(models):
+        p = np.asarray(poles, dtype=complex) / (2 * np.pi)
+        z = np.asarray(zeros, dtype=complex) / (2 * np.pi)
+        every += list(p) + list(z)
+        color = f'C{k % 10}'
+        if p.size:
+            ax.plot(p.real, p.imag, pmark, ms=12 if pmark == '+' else 8, mew=1.5, color=color,
+                    label=f'{label}: poles')
+        if z.size:
+            ax.plot(z.real, z.imag, zmark, ms=11 if zmark == 's' else 7, mfc='none', mew=1.2,
+                    color=color, label=f'{label}: zeros')
+    vals = np.abs(np.concatenate([np.real(every), np.imag(every)]))
+    # round-off parts (a real root's 1e-12 imaginary part) must not set the linear range
+    vals = vals[vals > 1e-6 * vals.max()] if vals.size else vals
+    thresh = float(10 ** np.floor(np.log10(vals.min()))) if vals.size else 1.0
+    ax.set_xscale('symlog', linthresh=thresh)
+    ax.set_yscale('symlog', linthresh=thresh)
+    ax.axhline(0.0, color='k', lw=0.5)
+    ax.axvline(0.0, color='k', lw=0.5)
+    ax.set_xlabel('real part / 2 pi [Hz]')
+    ax.set_ylabel('imaginary part / 2 pi [Hz]')
+    ax.set_title('pole-zero map (continuous time, s / 2 pi)')
+    ax.grid(True, which='both', alpha=0.3)
+    ax.legend(loc='best', fontsize=7)
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=110)

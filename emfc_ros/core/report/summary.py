@@ -26,7 +26,7 @@ def _modes_text(modes: Sequence[Mapping[str, Any]]) -> str:
 
 
 def summary_markdown(result: Any, plots: Sequence[str] = (),
-                     notes: Sequence[str] = ()) -> str:
+                     notes: Sequence[str] = (), exports: Sequence[str] = ()) -> str:
     """
     Describe what was identified, the key numbers with uncertainty, fits and warnings.
 
@@ -38,6 +38,8 @@ def summary_markdown(result: Any, plots: Sequence[str] = (),
         File names of the plots written next to the summary (linked).
     notes : sequence of str
         Extra lines for the warnings section (e.g. plots skipped).
+    exports : sequence of str
+        File names of the exported FRFs and models written next to the summary (listed).
 
     Returns
     -------
@@ -127,6 +129,13 @@ def summary_markdown(result: Any, plots: Sequence[str] = (),
     lines += model_parameter_lines(d.get('model_parameters'))
     if plots:
         lines += ['## Plots', ''] + [f'- [{p}]({p})' for p in plots] + ['']
+    if exports:
+        lines += ['## Files to load in MATLAB or Python', '',
+                  'Full-resolution FRFs (`frf_*.csv`, `frf_*.npz`, `frf_*.mat` with the '
+                  '`idfrd` variables `Frequency`, `ResponseData`, `CovarianceData`) and the '
+                  'fitted models (`models.yaml`, `models.mat`); fields and units in '
+                  '`docs/identification_results.md`.', '']
+        lines += [f'- [{e}]({e})' for e in exports] + ['']
     warn = list(d['warnings']) + list(notes)
     lines += ['## Warnings', ''] + ([f'- {w}' for w in warn] if warn else ['- none']) + ['']
     lines += ['All numbers with units and uncertainties are in `results.yaml`.', '']
