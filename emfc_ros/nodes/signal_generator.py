@@ -338,17 +338,20 @@ class SignalGeneratorNode(Node):
                                     'to run the experiment again in a new epoch')
             self._publish_status()
             return None
-        if decision.waiting != self._waiting:
-            if decision.waiting:
-                log = self.get_logger().info if decision.waiting.startswith('consumer') \
-                    else self.get_logger().warning
-                log(f'epoch {self._epoch}: waiting for a {decision.waiting}')
-            elif self._waiting.startswith('consumer'):
+        before, self._waiting = self._waiting, decision.waiting
+        if before.split(':')[0] != decision.waiting.split(':')[0]:
+            # Log and publish the status when what we wait for changes, not at every tick.
+            if decision.waiting.startswith('consumer'):
+                self.get_logger().info(f'epoch {self._epoch}: waiting for a '
+                                       f'{decision.waiting}')
+            elif decision.waiting:
+                self.get_logger().warning(f'epoch {self._epoch}: waiting for an '
+                                          f'{decision.waiting}')
+            elif before.startswith('consumer'):
                 self.get_logger().info(
                     f'epoch {self._epoch}: consumer matched '
                     f'({self._pub_blocks.get_subscription_count()} subscription(s)); '
                     'sending from sample 0')
-            self._waiting = decision.waiting
             self._publish_status()
         if decision.resend_from is not None:
             self.get_logger().warning(
@@ -396,8 +399,8 @@ class SignalGeneratorNode(Node):
         """Everything sent: watch the consumer acknowledge the tail, re-send it if needed."""
         pacer = self._consumer_pacer
         if not pacer.in_flight:
-            self._restart_timer(0.0)
-            if self._waiting:
+            if self._timer is not None:     # the whole experiment acknowledged: say so once
+                self._restart_timer(0.0)
                 self._waiting = ''
                 self._publish_status()
             return
@@ -477,7 +480,8 @@ class SignalGeneratorNode(Node):
         if self._state == 'error':
             level, message = DiagnosticStatus.ERROR, self._error
         elif self._waiting:
-            level, message = DiagnosticStatus.WARN, f'{self._state}: waiting for a ' \
+            article = 'a' if self._waiting.startswith('consumer') else 'an'
+            level, message = DiagnosticStatus.WARN, f'{self._state}: waiting for {article} ' \
                 f'{self._waiting}'
         else:
             level, message = DiagnosticStatus.OK, self._state

@@ -149,7 +149,8 @@ def test_in_process_consumer_paced_stream_is_exact_and_contiguous(executor, ros_
 
 def test_consumer_pacing_holds_back_without_acknowledgements(executor, ros_context):
     gen = SignalGeneratorNode(context=ros_context, parameter_overrides=small_overrides(
-        pacing='consumer', block_size=100, window_blocks=3, autostart=False))
+        pacing='consumer', block_size=100, window_blocks=3, autostart=False,
+        ack_timeout_s=30.0, consumer_timeout_s=60.0))       # no re-send in this test
     listener = Listener(ros_context, acknowledge=False)
     executor.add_node(gen)
     executor.add_node(listener.node)
