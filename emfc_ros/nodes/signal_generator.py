@@ -230,6 +230,7 @@ class SignalGeneratorNode(Node):
             self._error = str(exc)
             return False, str(exc)
         self._restart_timer(0.0)
+        self._waiting = ''
         self._experiment = experiment
         self._epoch += 1
         self._next_index = 0
@@ -292,6 +293,7 @@ class SignalGeneratorNode(Node):
             return False, f'not running (state {self._state})'
         self._restart_timer(0.0)
         self._state = 'stopped'
+        self._waiting = ''
         self._publish_status()
         return True, f'stopped at sample {self._next_index}'
 
