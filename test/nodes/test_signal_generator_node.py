@@ -177,6 +177,59 @@ def test_consumer_pacing_holds_back_without_acknowledgements(executor, ros_conte
                                   expected_samples())
 
 
+class LossyListener(Listener):
+    """
+    A listener whose first blocks or first acknowledgements are lost.
+
+    ``miss_blocks`` blocks are ignored as if the subscription had not matched yet;
+    ``lose_acks`` acknowledgements are not published as if the generator's subscription
+    had not matched the acknowledging publisher yet.
+    """
+
+    def __init__(self, context, miss_blocks=0, lose_acks=0):
+        super().__init__(context)
+        self.miss_blocks = miss_blocks
+        self.lose_acks = lose_acks
+
+    def _on_block(self, msg):
+        if self.miss_blocks:
+            self.miss_blocks -= 1
+            return
+        if self.lose_acks:
+            self.lose_acks -= 1
+            self.acknowledge = False
+            super()._on_block(msg)
+            self.acknowledge = True
+            return
+        super()._on_block(msg)
+
+
+@pytest.mark.parametrize('loss', [{'miss_blocks': 3}, {'lose_acks': 3}],
+                         ids=['first_window_missed', 'first_acknowledgements_lost'])
+def test_consumer_pacing_sends_a_lost_window_again(executor, ros_context, loss):
+    gen = SignalGeneratorNode(context=ros_context, parameter_overrides=small_overrides(
+        pacing='consumer', block_size=100, window_blocks=3, autostart=False,
+        ack_timeout_s=0.2))
+    listener = LossyListener(ros_context, **loss)
+    executor.add_node(gen)
+    executor.add_node(listener.node)
+    assert listener.call(executor, 'start').success
+    assert ros_harness.spin_until(
+        executor, lambda: listener.status is not None and listener.status['state'] == 'done'
+        and listener.status['acknowledged_sample_index'] == 833, TIMEOUT_S), listener.status
+    assert listener.status['resends'] >= 1 and listener.status['error'] == ''
+    # The listener has the whole epoch from sample 0, each sample once.
+    kept = [b for b, k in zip(listener.blocks, listener.kinds)
+            if k in (Continuity.FIRST, Continuity.CONTIGUOUS)]
+    assert listener.kinds[0] is Continuity.FIRST and kept[0].first_sample_index == 0
+    np.testing.assert_array_equal(np.concatenate([b.samples for b in kept], axis=1),
+                                  expected_samples())
+    assert set(listener.kinds) - {Continuity.FIRST, Continuity.CONTIGUOUS} <= {
+        Continuity.DUPLICATE}
+    if 'lose_acks' in loss:
+        assert listener.kinds.count(Continuity.DUPLICATE) >= 3
+
+
 def _set(executor, client, params):
     assert ros_harness.spin_until(executor, lambda: client.services_are_ready(), TIMEOUT_S)
     future = client.set_parameters(params)
