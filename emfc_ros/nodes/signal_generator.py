@@ -204,7 +204,7 @@ class SignalGeneratorNode(Node):
         proposed = {p.name: p.value for p in params}
         ack_s = proposed.get('ack_timeout_s', self._param('ack_timeout_s'))
         consumer_s = proposed.get('consumer_timeout_s', self._param('consumer_timeout_s'))
-        if consumer_s < ack_s:
+        if set(proposed) & set(TIME_LIMITS) and consumer_s < ack_s:
             return SetParametersResult(
                 successful=False, reason=f'consumer_timeout_s ({consumer_s} s) must be at '
                                          f'least ack_timeout_s ({ack_s} s)')
