@@ -230,6 +230,36 @@ def test_consumer_pacing_sends_a_lost_window_again(executor, ros_context, loss):
         assert listener.kinds.count(Continuity.DUPLICATE) >= 3
 
 
+def test_a_subscriber_that_does_not_acknowledge_does_not_start_the_stream(
+        executor, ros_context):
+    # A recorder (here: a plain subscription) up before the consumer must not make the
+    # generator send its first window into the void: sample 0 waits for an acknowledger.
+    gen = SignalGeneratorNode(context=ros_context, parameter_overrides=small_overrides(
+        pacing='consumer', block_size=100, window_blocks=3, autostart=True))
+    recorder = rclpy.create_node('recorder_like', context=ros_context)
+    recorded = []
+    recorder.create_subscription(Float64MultiArray, 'excitation',
+                                 lambda m: recorded.append(msg_to_block(m)), BLOCK_QOS)
+    statuses = []
+    recorder.create_subscription(String, 'signal_generator/status',
+                                 lambda m: statuses.append(json.loads(m.data)), LATCHED_QOS)
+    executor.add_node(gen)
+    executor.add_node(recorder)
+    assert ros_harness.spin_until(
+        executor, lambda: gen.count_subscribers('excitation') >= 1 and statuses
+        and 'publisher of acknowledgements' in statuses[-1]['waiting'], TIMEOUT_S), statuses
+    ros_harness.wait_until(lambda: False, 0.5, lambda: executor.spin_once(timeout_sec=0.02))
+    assert recorded == [] and statuses[-1]['next_sample_index'] == 0
+    assert statuses[-1]['state'] == 'running'
+    listener = Listener(ros_context)
+    executor.add_node(listener.node)
+    assert ros_harness.spin_until(
+        executor, lambda: listener.done is True and listener.received() == 833
+        and sum(b.n_samples for b in recorded) == 833, TIMEOUT_S)
+    assert recorded[0].first_sample_index == 0 and listener.kinds[0] is Continuity.FIRST
+    assert statuses[-1]['resends'] == 0
+
+
 def _set(executor, client, params):
     assert ros_harness.spin_until(executor, lambda: client.services_are_ready(), TIMEOUT_S)
     future = client.set_parameters(params)
