@@ -2,7 +2,10 @@
 An experiment on the simulated balance (needs a full ROS 2 Jazzy install).
 
 The signal generator, consumer-paced, drives the plant simulator, which owns time (it
-publishes /clock and runs as fast as the excitation arrives). Record with
+publishes /clock and runs as fast as the excitation arrives). The two processes may come
+up in any order: the generator holds sample 0 until the plant's subscription and
+acknowledgements are matched and re-sends a window that is not acknowledged (README,
+signal_generator). Record with
 ``ros2 bag record -s mcap /emfc/excitation /emfc/measurements ...``.
 
     ros2 launch emfc_ros sim_experiment.launch.py load_mass_kg:=0.1274

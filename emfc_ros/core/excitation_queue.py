@@ -20,6 +20,9 @@ import numpy as np
 from emfc_ros.core.blocks import Block, Continuity, SequenceTracker
 from emfc_ros.core.errors import BlockError
 
+#: How a block the queue already has shows up (dropped and counted): a re-sent block.
+DROPPED = frozenset({Continuity.DUPLICATE, Continuity.REORDERED, Continuity.OVERLAP})
+
 
 class ExcitationQueue:
     """

@@ -52,7 +52,7 @@ from emfc_ros.core.device.errors import DeviceConfigError, DeviceError
 from emfc_ros.core.device.function_generator import GeneratorSpec, make_signal
 from emfc_ros.core.device.sim_backend import load_parameters
 from emfc_ros.core.errors import BlockError, ConfigError
-from emfc_ros.core.excitation_queue import ExcitationQueue
+from emfc_ros.core.excitation_queue import DROPPED, ExcitationQueue
 from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
@@ -741,8 +741,13 @@ class DaqBridgeNode(Node):
         with self._lock:
             kind = self._exc_tracker.observe(block.first_sample_index, block.n_samples,
                                              block.epoch)
-            if kind in (Continuity.DUPLICATE, Continuity.REORDERED, Continuity.OVERLAP):
-                return                          # counted by the tracker
+            if kind in DROPPED:
+                # Counted by the tracker. A block we already have: its sender did not hear
+                # our acknowledgement, so say again how far we are.
+                acked = self._acked
+                if acked > 0 and self._offset is not None:
+                    self._pub_ack.publish(UInt64(data=int(acked)))
+                return
             self._counts['excitation_blocks'] += 1
             self._counts['clamped_samples'] += clipped
             self._last_excitation = time.monotonic()

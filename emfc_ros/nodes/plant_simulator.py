@@ -67,7 +67,7 @@ from emfc_ros.core.blocks import Channel, StreamDescription
 from emfc_ros.core.config import unflatten
 from emfc_ros.core.control.loop_config import loop_config, loop_timing
 from emfc_ros.core.errors import BlockError, ConfigError
-from emfc_ros.core.excitation_queue import ExcitationQueue
+from emfc_ros.core.excitation_queue import DROPPED, ExcitationQueue
 from emfc_ros.core.model.parameters import BalanceParameters
 from emfc_ros.core.paths import config_file
 from emfc_ros.core.sim.channels import channel_names, channel_units, MEASURED, REFERENCE
@@ -473,7 +473,7 @@ class PlantSimulatorNode(Node):
             if abs(block.sample_rate_Hz - self._rate) > 1e-9 * self._rate:
                 raise BlockError(f'excitation at {block.sample_rate_Hz} Hz, simulator runs at '
                                  f'{self._rate} Hz')
-            self._queue.push(block)
+            kind = self._queue.push(block)
         except BlockError as exc:
             self._malformed += 1
             self._last_error = str(exc)
@@ -481,6 +481,11 @@ class PlantSimulatorNode(Node):
                                       throttle_duration_sec=5.0)
             return
         self._blocks_in += 1
+        if kind in DROPPED and block.epoch == self._queue.epoch and self._queue.head_index:
+            # A block we already have (counted): its sender did not hear our acknowledgement,
+            # so say again how far we are, or a consumer-paced generator waits for nothing.
+            self._pub_ack.publish(UInt64(data=self._queue.head_index))
+            return
         if self._epoch != block.epoch and self._mode == 'owner':
             self._epoch = block.epoch
             self._publish_descriptions()

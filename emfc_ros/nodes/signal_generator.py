@@ -7,7 +7,10 @@ Topics (relative to the node namespace):
   block convention of :mod:`emfc_ros.core.blocks`.
 - ``excitation/description`` (``std_msgs/String``, out, latched): the stream description.
 - ``excitation/consumed`` (``std_msgs/UInt64``, in): a consumer's acknowledgement, the
-  number of samples it has consumed; drives ``pacing: consumer``.
+  number of samples it has consumed; drives ``pacing: consumer``. Sample 0 waits until a
+  consumer is matched; an unacknowledged window is re-sent after ``ack_timeout_s`` and a
+  consumer silent for ``consumer_timeout_s`` puts the node in state ``error``
+  (:class:`emfc_ros.core.pacing.ConsumerPacer`).
 - ``~/status`` (``std_msgs/String``, out, latched): JSON with state, sample index, section.
 - ``~/done`` (``std_msgs/Bool``, out, latched): true once the experiment has been sent.
 - ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``, out, 1 Hz).
@@ -25,6 +28,7 @@ from typing import List, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Bool, Float64MultiArray, String, UInt64
@@ -63,8 +67,18 @@ PARAMETERS = {
                            '(half the lead time, 1 ms to 20 ms)'),
     'max_blocks_per_tick': (64, 'most blocks published per timer tick [blocks], 1 to 10000'),
     'min_subscribers': (0, 'after start, hold sample 0 until this many subscriptions match '
-                           'the excitation publisher [count], 0 to 100'),
+                           'the excitation publisher [count], 0 to 100; consumer pacing '
+                           'always waits for at least 1 and for a publisher on '
+                           'excitation/consumed'),
+    'ack_timeout_s': (1.0, 'consumer pacing: samples unacknowledged for this long are sent '
+                           'again from the last acknowledgement [s], 0.01 to 3600'),
+    'consumer_timeout_s': (10.0, 'consumer pacing: no acknowledgement for this long while '
+                                 'samples are in flight puts the node in state error [s], '
+                                 'ack_timeout_s to 86400'),
 }
+
+#: Float parameters with their range [s].
+TIME_LIMITS = {'ack_timeout_s': (0.01, 3600.0), 'consumer_timeout_s': (0.01, 86400.0)}
 
 
 class SignalGeneratorNode(Node):
@@ -94,6 +108,10 @@ class SignalGeneratorNode(Node):
         self._consumer_pacer: Optional[ConsumerPacer] = None
         self._builder = BlockMessageBuilder()
         self._rejected_acks = 0
+        self._waiting = ''
+        # Timers run on the steady clock: with use_sim_time the node clock stands still
+        # until /clock moves, which is what a waiting generator must report, not wait for.
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
 
         self._pub_blocks = self.create_publisher(Float64MultiArray, 'excitation', BLOCK_QOS)
         self._pub_description = self.create_publisher(String, 'excitation/description',
@@ -102,7 +120,8 @@ class SignalGeneratorNode(Node):
         self._pub_status = self.create_publisher(String, '~/status', LATCHED_QOS)
         self._pub_done = self.create_publisher(Bool, '~/done', LATCHED_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self.create_subscription(UInt64, 'excitation/consumed', self._on_consumed, CONTROL_QOS)
+        self._sub_ack = self.create_subscription(UInt64, 'excitation/consumed',
+                                                 self._on_consumed, CONTROL_QOS)
         self.create_service(Trigger, '~/arm', self._srv_arm)
         self.create_service(Trigger, '~/start', self._srv_start)
         self.create_service(Trigger, '~/stop', self._srv_stop)
@@ -112,14 +131,17 @@ class SignalGeneratorNode(Node):
         self._block_size = 0
         self._max_blocks_per_tick = 0
         self._min_subscribers = 0
-        self.create_timer(1.0, self._publish_diagnostics)
+        self.create_timer(1.0, self._publish_diagnostics, clock=self._steady)
         self._publish_done(False)
         ok, reason = self._arm()
         if not ok:
             self.get_logger().error(f'experiment refused: {reason}; fix the parameters and '
                                     'call ~/arm or ~/start')
         elif self._param('autostart'):
-            self._start()
+            ok, reason = self._start()
+            if not ok:
+                self._state, self._error = 'error', reason
+                self.get_logger().error(f'autostart refused: {reason}')
         self._publish_status()
 
     # -- configuration ---------------------------------------------------------------------
@@ -168,11 +190,24 @@ class SignalGeneratorNode(Node):
                 return SetParametersResult(
                     successful=False, reason='tick_period_s must be 0 (automatic) or a float '
                                              f'from 1e-4 to 1 s, got {p.value!r}')
+            elif p.name in TIME_LIMITS:
+                lo, hi = TIME_LIMITS[p.name]
+                if p.type_ != Parameter.Type.DOUBLE or not lo <= p.value <= hi:
+                    return SetParametersResult(
+                        successful=False,
+                        reason=f'{p.name} must be a float from {lo} to {hi} s, got {p.value!r}')
             elif p.name == 'autostart' and p.type_ != Parameter.Type.BOOL:
                 return SetParametersResult(successful=False,
                                            reason='autostart must be true or false')
             if p.name == 'experiment_file' or p.name.startswith('experiment.'):
                 touches_experiment = True
+        proposed = {p.name: p.value for p in params}
+        ack_s = proposed.get('ack_timeout_s', self._param('ack_timeout_s'))
+        consumer_s = proposed.get('consumer_timeout_s', self._param('consumer_timeout_s'))
+        if set(proposed) & set(TIME_LIMITS) and consumer_s < ack_s:
+            return SetParametersResult(
+                successful=False, reason=f'consumer_timeout_s ({consumer_s} s) must be at '
+                                         f'least ack_timeout_s ({ack_s} s)')
         if touches_experiment or any(p.name in ('block_size', 'pacing') for p in params):
             if self._state == 'running':
                 return SetParametersResult(
@@ -194,6 +229,8 @@ class SignalGeneratorNode(Node):
             self._state = 'error'
             self._error = str(exc)
             return False, str(exc)
+        self._restart_timer(0.0)
+        self._waiting = ''
         self._experiment = experiment
         self._epoch += 1
         self._next_index = 0
@@ -223,8 +260,17 @@ class SignalGeneratorNode(Node):
             self._clock_pacer = ClockPacer(rate, block, lead_blocks, self._started_at)
             self._consumer_pacer = None
         else:
-            self._consumer_pacer = ConsumerPacer(block, int(self._param('window_blocks')))
+            try:
+                self._consumer_pacer = ConsumerPacer(
+                    block, int(self._param('window_blocks')),
+                    ack_timeout_s=float(self._param('ack_timeout_s')),
+                    consumer_timeout_s=float(self._param('consumer_timeout_s')),
+                    min_subscribers=self._min_subscribers)
+            except (TypeError, ValueError) as exc:
+                return False, f'consumer pacing refused: {exc}'
+            self._consumer_pacer.reset(self._started_at)
             self._clock_pacer = None
+        self._waiting = ''
         period = float(self._param('tick_period_s'))
         if period == 0.0:
             period = min(0.02, max(0.001, 0.5 * max(lead_blocks, 1) * block / rate))
@@ -240,13 +286,14 @@ class SignalGeneratorNode(Node):
             self.destroy_timer(self._timer)
             self._timer = None
         if period_s > 0:
-            self._timer = self.create_timer(period_s, self._tick)
+            self._timer = self.create_timer(period_s, self._tick, clock=self._steady)
 
     def _stop(self) -> tuple:
         if self._state != 'running':
             return False, f'not running (state {self._state})'
         self._restart_timer(0.0)
         self._state = 'stopped'
+        self._waiting = ''
         self._publish_status()
         return True, f'stopped at sample {self._next_index}'
 
@@ -270,53 +317,118 @@ class SignalGeneratorNode(Node):
     # -- streaming -------------------------------------------------------------------------
 
     def _on_consumed(self, msg: UInt64) -> None:
-        if self._consumer_pacer is None or self._state != 'running':
+        pacer = self._consumer_pacer
+        if pacer is None or self._state not in ('running', 'done'):
             return
-        if msg.data > self._experiment.total_samples:
+        if not pacer.acceptable(msg.data):
             self._rejected_acks += 1
             return
-        self._consumer_pacer.acknowledge(msg.data)
-        self._tick()
+        if pacer.acknowledge(msg.data, time.monotonic()):
+            self._tick()
+
+    def _consumer_allowed(self) -> Optional[int]:
+        """Poll the consumer pacer: rewind for a re-send, report waiting, or fail."""
+        pacer = self._consumer_pacer
+        decision = pacer.poll(time.monotonic(), self._pub_blocks.get_subscription_count(),
+                              self._sub_ack.get_publisher_count())
+        if decision.error:
+            self._restart_timer(0.0)
+            self._state = 'error'
+            self._error = decision.error
+            self._waiting = ''
+            self.get_logger().error(f'consumer pacing stalled: {decision.error}; call ~/start '
+                                    'to run the experiment again in a new epoch')
+            self._publish_status()
+            return None
+        before, self._waiting = self._waiting, decision.waiting
+        if before.split(':')[0] != decision.waiting.split(':')[0]:
+            # Log and publish the status when what we wait for changes, not at every tick.
+            if decision.waiting.startswith('consumer'):
+                self.get_logger().info(f'epoch {self._epoch}: waiting for a '
+                                       f'{decision.waiting}')
+            elif decision.waiting:
+                self.get_logger().warning(f'epoch {self._epoch}: waiting for an '
+                                          f'{decision.waiting}')
+            elif before.startswith('consumer'):
+                self.get_logger().info(
+                    f'epoch {self._epoch}: consumer matched '
+                    f'({self._pub_blocks.get_subscription_count()} subscription(s)); '
+                    'sending from sample 0')
+            self._publish_status()
+        if decision.resend_from is not None:
+            self.get_logger().warning(
+                f'epoch {self._epoch}: no acknowledgement for {pacer.ack_timeout_s:g} s, '
+                f'sending again from sample {decision.resend_from} (re-send '
+                f'{pacer.resends})', throttle_duration_sec=5.0)
+            self._next_index = decision.resend_from
+        return decision.allowed_index
 
     def _tick(self) -> None:
+        if self._state == 'done' and self._consumer_pacer is not None:
+            self._drain()
+            return
         if self._state != 'running':
             return
         experiment = self._experiment
         total = experiment.total_samples
-        block = self._block_size
-        if self._next_index == 0 and \
-                self._pub_blocks.get_subscription_count() < self._min_subscribers:
-            # Not started yet: the clock of sample 0 starts when the consumers are there.
-            self._started_at = time.monotonic()
-            if self._clock_pacer is not None:
-                self._clock_pacer.start_time_s = self._started_at
-            return
         if self._clock_pacer is not None:
+            if self._next_index == 0 and \
+                    self._pub_blocks.get_subscription_count() < self._min_subscribers:
+                # Not started yet: the clock of sample 0 starts when the consumers are there.
+                self._started_at = time.monotonic()
+                self._clock_pacer.start_time_s = self._started_at
+                return
             allowed = self._clock_pacer.allowed_index(time.monotonic())
         else:
-            allowed = self._consumer_pacer.allowed_index()
+            allowed = self._consumer_allowed()
+            if allowed is None:
+                return
+        section_before = experiment.section_index_at(self._next_index)
+        self._send(allowed)
+        if self._next_index < total and \
+                experiment.section_index_at(self._next_index) != section_before:
+            self._publish_status()
+        if self._next_index >= total:
+            if self._consumer_pacer is None or not self._consumer_pacer.in_flight:
+                self._restart_timer(0.0)
+            self._state = 'done'
+            self._publish_done(True)
+            self._publish_status()
+            self.get_logger().info(f'experiment done: {total} samples in '
+                                   f'{self._blocks_sent} blocks, epoch {self._epoch}')
+
+    def _drain(self) -> None:
+        """Everything sent: watch the consumer acknowledge the tail, re-send it if needed."""
+        pacer = self._consumer_pacer
+        if not pacer.in_flight:
+            if self._timer is not None:     # the whole experiment acknowledged: say so once
+                self._restart_timer(0.0)
+                self._waiting = ''
+                self._publish_status()
+            return
+        total = self._experiment.total_samples
+        allowed = self._consumer_allowed()
+        if allowed is None or self._next_index >= total:
+            return
+        self._send(allowed)     # the unacknowledged tail again; the state stays done
+
+    def _send(self, allowed: int) -> None:
+        """Publish blocks from the next sample index up to ``allowed`` (bounded per tick)."""
+        experiment = self._experiment
+        total = experiment.total_samples
         allowed = min(allowed, total)
         budget = self._max_blocks_per_tick
         rate = experiment.sample_rate_Hz
-        section_before = experiment.section_index_at(self._next_index)
         while self._next_index < allowed and budget > 0:
-            n = min(block, total - self._next_index)
+            n = min(self._block_size, total - self._next_index)
             samples = experiment.block(self._next_index, n)
             self._pub_blocks.publish(self._builder.build(self._next_index, rate, self._epoch,
                                                          samples))
             self._next_index += n
             self._blocks_sent += 1
             budget -= 1
-        if self._next_index < total and \
-                experiment.section_index_at(self._next_index) != section_before:
-            self._publish_status()
-        if self._next_index >= total:
-            self._restart_timer(0.0)
-            self._state = 'done'
-            self._publish_done(True)
-            self._publish_status()
-            self.get_logger().info(f'experiment done: {total} samples in '
-                                   f'{self._blocks_sent} blocks, epoch {self._epoch}')
+        if self._consumer_pacer is not None:
+            self._consumer_pacer.sent(self._next_index)
 
     # -- announcements ---------------------------------------------------------------------
 
@@ -341,9 +453,13 @@ class SignalGeneratorNode(Node):
             current = self._experiment.section_at(self._next_index)
             section = current.name if current is not None else ''
         total = self._experiment.total_samples if self._experiment is not None else 0
-        return {'state': self._state, 'epoch': self._epoch, 'next_sample_index':
-                self._next_index, 'total_samples': total, 'section': section,
-                'error': self._error}
+        status = {'state': self._state, 'epoch': self._epoch, 'next_sample_index':
+                  self._next_index, 'total_samples': total, 'section': section,
+                  'error': self._error, 'waiting': self._waiting}
+        if self._consumer_pacer is not None:
+            status.update({'acknowledged_sample_index': self._consumer_pacer.acknowledged,
+                           'resends': self._consumer_pacer.resends})
+        return status
 
     def _publish_status(self) -> None:
         self._pub_status.publish(String(data=json.dumps(self._status_dict())))
@@ -363,9 +479,15 @@ class SignalGeneratorNode(Node):
         if self._clock_pacer is not None and self._state == 'running':
             lag = self._clock_pacer.lag_s(time.monotonic(), self._next_index, rate)
             values['lag_s'] = f'{lag:.6f}'
-        level = DiagnosticStatus.ERROR if self._state == 'error' else DiagnosticStatus.OK
-        self._pub_diag.publish(node_diagnostics(self, 'excitation', level,
-                                                self._error or self._state, values))
+        if self._state == 'error':
+            level, message = DiagnosticStatus.ERROR, self._error
+        elif self._waiting:
+            article = 'a' if self._waiting.startswith('consumer') else 'an'
+            level, message = DiagnosticStatus.WARN, f'{self._state}: waiting for {article} ' \
+                f'{self._waiting}'
+        else:
+            level, message = DiagnosticStatus.OK, self._state
+        self._pub_diag.publish(node_diagnostics(self, 'excitation', level, message, values))
 
 
 main = node_main(SignalGeneratorNode, 'signal_generator')

@@ -371,6 +371,31 @@ def test_sim_backend_streams_contiguous_blocks_and_refuses_bad_input(executor, r
     assert bridge.set_parameters([Parameter('watchdog_timeout_s', value=2.0)])[0].successful
 
 
+def test_a_block_sent_again_is_acknowledged_again(executor, ros_context):
+    # A consumer-paced generator that did not hear the acknowledgement sends the window
+    # again: the bridge drops it (counted) and says again how far the device is.
+    bridge = DaqBridgeNode(context=ros_context, parameter_overrides=bridge_params(
+        backend='sim', block_size=100))
+    probe = Probe(ros_context)
+    setup_nodes(executor, bridge, probe.node)
+    assert ros_harness.spin_until(
+        executor, lambda: len(probe.blocks) >= 2 and
+        probe.excitation.get_subscription_count() >= 1
+        and probe.node.count_publishers('excitation/consumed') >= 1, TIMEOUT_S)
+    window = excitation_blocks(0, 2, 0.1, 0.0)
+    for msg in window:
+        probe.excitation.publish(msg)
+    assert ros_harness.spin_until(executor, lambda: probe.acks and probe.acks[-1] == 1000,
+                                  TIMEOUT_S), probe.acks
+    n = len(probe.acks)
+    for msg in window:
+        probe.excitation.publish(msg)
+    assert ros_harness.spin_until(executor, lambda: len(probe.acks) >= n + 2, TIMEOUT_S)
+    assert probe.acks[n:] == [1000, 1000]
+    values = bridge.diagnostic_values()
+    assert values['excitation_blocks'] == 2 and values['excitation_duplicates'] == 2
+
+
 def test_invalid_start_up_parameters_leave_a_running_node_that_says_why(
         executor, ros_context):
     bridge = DaqBridgeNode(context=ros_context, parameter_overrides=bridge_params(

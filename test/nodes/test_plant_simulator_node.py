@@ -13,7 +13,7 @@ from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray, String
+from std_msgs.msg import Float64MultiArray, String, UInt64
 
 from emfc_ros.core.config import unflatten
 from emfc_ros.core.model.parameters import BalanceParameters
@@ -21,7 +21,7 @@ from emfc_ros.core.paths import config_file
 from emfc_ros.core.signals import experiment_from_config
 from emfc_ros.core.sim.simulator import Simulator
 from emfc_ros.nodes.convert import (
-    BLOCK_QOS, block_to_msg, LATCHED_QOS, msg_to_block, msg_to_description)
+    BLOCK_QOS, block_to_msg, CONTROL_QOS, LATCHED_QOS, msg_to_block, msg_to_description)
 from emfc_ros.nodes.plant_simulator import PlantSimulatorNode
 from emfc_ros.nodes.signal_generator import SignalGeneratorNode
 import ros_harness
@@ -178,6 +178,30 @@ def test_bad_excitation_is_counted_and_the_node_keeps_going(executor, ros_contex
     assert ros_harness.spin_until(
         executor, lambda: probe.diag_value('malformed_messages') == '3', TIMEOUT_S)
     assert probe.blocks['measurements'][0][0] == 0
+
+
+def test_a_block_sent_again_is_dropped_and_acknowledged_again(executor, ros_context):
+    # A consumer-paced generator that did not hear the acknowledgement sends the window
+    # again: the plant must not simulate it twice, and must say again how far it is.
+    plant, probe, feeder, pub = _owner_plant_with_feeder(executor, ros_context, [])
+    acks = []
+    feeder.create_subscription(UInt64, 'excitation/consumed', lambda m: acks.append(m.data),
+                               CONTROL_QOS)
+    assert ros_harness.spin_until(
+        executor, lambda: feeder.count_publishers('excitation/consumed') >= 1, TIMEOUT_S)
+    first = block_to_msg(0, RATE, 1, np.zeros((2, 100)))
+    second = block_to_msg(100, RATE, 1, np.zeros((2, 100)))
+    pub.publish(first)
+    pub.publish(second)
+    assert ros_harness.spin_until(executor, lambda: acks == [100, 200], TIMEOUT_S), acks
+    pub.publish(first)
+    pub.publish(second)
+    assert ros_harness.spin_until(executor, lambda: acks == [100, 200, 200, 200],
+                                  TIMEOUT_S), acks
+    assert ros_harness.spin_until(
+        executor, lambda: probe.diag_value('duplicates') == '2', TIMEOUT_S)
+    assert [b[0] for b in probe.blocks['measurements']] == [0, 100]
+    assert probe.diag_value('simulated_samples') == '200'
 
 
 @pytest.mark.slow

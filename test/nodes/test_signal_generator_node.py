@@ -149,7 +149,8 @@ def test_in_process_consumer_paced_stream_is_exact_and_contiguous(executor, ros_
 
 def test_consumer_pacing_holds_back_without_acknowledgements(executor, ros_context):
     gen = SignalGeneratorNode(context=ros_context, parameter_overrides=small_overrides(
-        pacing='consumer', block_size=100, window_blocks=3, autostart=False))
+        pacing='consumer', block_size=100, window_blocks=3, autostart=False,
+        ack_timeout_s=30.0, consumer_timeout_s=60.0))       # no re-send in this test
     listener = Listener(ros_context, acknowledge=False)
     executor.add_node(gen)
     executor.add_node(listener.node)
@@ -174,6 +175,89 @@ def test_consumer_pacing_holds_back_without_acknowledgements(executor, ros_conte
     assert listener.kinds[3] is Continuity.RESTART
     np.testing.assert_array_equal(np.concatenate([b.samples for b in epoch2], axis=1),
                                   expected_samples())
+
+
+class LossyListener(Listener):
+    """
+    A listener whose first blocks or first acknowledgements are lost.
+
+    ``miss_blocks`` blocks are ignored as if the subscription had not matched yet;
+    ``lose_acks`` acknowledgements are not published as if the generator's subscription
+    had not matched the acknowledging publisher yet.
+    """
+
+    def __init__(self, context, miss_blocks=0, lose_acks=0):
+        super().__init__(context)
+        self.miss_blocks = miss_blocks
+        self.lose_acks = lose_acks
+
+    def _on_block(self, msg):
+        if self.miss_blocks:
+            self.miss_blocks -= 1
+            return
+        if self.lose_acks:
+            self.lose_acks -= 1
+            self.acknowledge = False
+            super()._on_block(msg)
+            self.acknowledge = True
+            return
+        super()._on_block(msg)
+
+
+@pytest.mark.parametrize('loss', [{'miss_blocks': 3}, {'lose_acks': 3}],
+                         ids=['first_window_missed', 'first_acknowledgements_lost'])
+def test_consumer_pacing_sends_a_lost_window_again(executor, ros_context, loss):
+    gen = SignalGeneratorNode(context=ros_context, parameter_overrides=small_overrides(
+        pacing='consumer', block_size=100, window_blocks=3, autostart=False,
+        ack_timeout_s=0.2))
+    listener = LossyListener(ros_context, **loss)
+    executor.add_node(gen)
+    executor.add_node(listener.node)
+    assert listener.call(executor, 'start').success
+    assert ros_harness.spin_until(
+        executor, lambda: listener.status is not None and listener.status['state'] == 'done'
+        and listener.status['acknowledged_sample_index'] == 833, TIMEOUT_S), listener.status
+    assert listener.status['resends'] >= 1 and listener.status['error'] == ''
+    # The listener has the whole epoch from sample 0, each sample once.
+    kept = [b for b, k in zip(listener.blocks, listener.kinds)
+            if k in (Continuity.FIRST, Continuity.CONTIGUOUS)]
+    assert listener.kinds[0] is Continuity.FIRST and kept[0].first_sample_index == 0
+    np.testing.assert_array_equal(np.concatenate([b.samples for b in kept], axis=1),
+                                  expected_samples())
+    assert set(listener.kinds) - {Continuity.FIRST, Continuity.CONTIGUOUS} <= {
+        Continuity.DUPLICATE}
+    if 'lose_acks' in loss:
+        assert listener.kinds.count(Continuity.DUPLICATE) >= 3
+
+
+def test_a_subscriber_that_does_not_acknowledge_does_not_start_the_stream(
+        executor, ros_context):
+    # A recorder (here: a plain subscription) up before the consumer must not make the
+    # generator send its first window into the void: sample 0 waits for an acknowledger.
+    gen = SignalGeneratorNode(context=ros_context, parameter_overrides=small_overrides(
+        pacing='consumer', block_size=100, window_blocks=3, autostart=True))
+    recorder = rclpy.create_node('recorder_like', context=ros_context)
+    recorded = []
+    recorder.create_subscription(Float64MultiArray, 'excitation',
+                                 lambda m: recorded.append(msg_to_block(m)), BLOCK_QOS)
+    statuses = []
+    recorder.create_subscription(String, 'signal_generator/status',
+                                 lambda m: statuses.append(json.loads(m.data)), LATCHED_QOS)
+    executor.add_node(gen)
+    executor.add_node(recorder)
+    assert ros_harness.spin_until(
+        executor, lambda: gen.count_subscribers('excitation') >= 1 and statuses
+        and 'publisher of acknowledgements' in statuses[-1]['waiting'], TIMEOUT_S), statuses
+    ros_harness.wait_until(lambda: False, 0.5, lambda: executor.spin_once(timeout_sec=0.02))
+    assert recorded == [] and statuses[-1]['next_sample_index'] == 0
+    assert statuses[-1]['state'] == 'running'
+    listener = Listener(ros_context)
+    executor.add_node(listener.node)
+    assert ros_harness.spin_until(
+        executor, lambda: listener.done is True and listener.received() == 833
+        and sum(b.n_samples for b in recorded) == 833, TIMEOUT_S)
+    assert recorded[0].first_sample_index == 0 and listener.kinds[0] is Continuity.FIRST
+    assert statuses[-1]['resends'] == 0
 
 
 def _set(executor, client, params):
@@ -209,6 +293,9 @@ def test_separate_process_wall_paced_refuses_bad_parameters(tmp_path, processes,
         'duration_s': Parameter('experiment_file', value=str(_write_experiment(
             tmp_path / 'bad.yaml', **{'section.a.duration_s': -1.0}))),
         'No such file': Parameter('experiment_file', value=str(tmp_path / 'missing.yaml')),
+        'ack_timeout_s must be a float from 0.01': Parameter('ack_timeout_s', value=0.0),
+        'consumer_timeout_s must be a float': Parameter('consumer_timeout_s', value=-1.0),
+        'at least ack_timeout_s': Parameter('consumer_timeout_s', value=0.5),
     }
     for needle, param in refused.items():
         [result] = _set(executor, params, [param])
