@@ -184,9 +184,16 @@ def assess(rec: Any, options: Dict[str, Any]) -> Dict[str, Any]:
     # modes of the transfer-function fit of the coil FRF, which do carry a std
     try:
         chosen = res.frf('coil_chirp', 'coil').fit.chosen
-        pairs = [('low_mode_Hz', chosen.modes[0]), ('high_mode_Hz', chosen.modes[-1])]
+
+        def nearest(roots: Any, key: str) -> Any:
+            # a higher order may add a near-cancelling pole-zero pair far above: match by
+            # frequency, not by position in the list
+            return min(roots, key=lambda m: abs(m.frequency_Hz - truth_modes[key]))
+
+        pairs = [(k, nearest(chosen.modes, k)) for k in ('low_mode_Hz', 'high_mode_Hz')]
         if chosen.anti_resonances:
-            pairs.append(('anti_resonance_Hz', chosen.anti_resonances[0]))
+            pairs.append(('anti_resonance_Hz',
+                          nearest(chosen.anti_resonances, 'anti_resonance_Hz')))
         out['coil_frf_modes'] = {
             k: {'estimate': m.frequency_Hz, 'standard_uncertainty_Hz': m.frequency_std_Hz,
                 'truth': truth_modes[k],
