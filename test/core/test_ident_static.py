@@ -120,3 +120,41 @@ def test_fit_errors():
         fit_polynomial([0.0, 1.0, 2.0], [0.0, 1.0, 4.0], -1)
     with pytest.raises(IdentificationError, match='equal length'):
         fit_motor_coefficient([1.0, 2.0], [1.0], [1.0, 2.0])
+
+
+def test_a_std_floor_scales_the_covariance_of_a_too_good_fit():
+    from emfc_ros.core.ident.static_fit import with_std_floor
+    rng = np.random.default_rng(7)
+    x = np.linspace(-1.0, 1.0, 9)
+    y = 1e-5 + 0.01 * x + rng.normal(0.0, 1e-8, x.size)
+    fit = fit_polynomial(x, y, 1)
+    floored = with_std_floor(fit, 1e-6)
+    ratio = 1e-6 / fit.residual_std
+    np.testing.assert_allclose(floored.standard_errors, fit.standard_errors * ratio, rtol=1e-12)
+    np.testing.assert_allclose(floored.coefficients, fit.coefficients)
+    assert floored.residual_std == fit.residual_std
+    # a fit whose scatter is already above the floor is left alone
+    assert with_std_floor(fit, 0.5 * fit.residual_std) is fit
+    assert with_std_floor(fit, 0.0) is fit
+
+
+def test_quantised_plateau_means_get_an_uncertainty_that_covers_their_rounding():
+    # plateau means rounded to a step of 3e-6 (no dither): the residuals of 9 plateaus may
+    # scatter less than step / sqrt(12); the floor keeps the offset's interval honest
+    from emfc_ros.core.ident.static_fit import with_std_floor
+    step = 3.05e-6
+    rng = np.random.default_rng(2024)
+    inside_raw = inside_floor = 0
+    trials = 400
+    x = np.linspace(-1.0, 1.0, 9)
+    for _ in range(trials):
+        c0 = rng.uniform(-1e-5, 1e-5)
+        c1 = 0.01 * rng.uniform(0.95, 1.05)
+        y = np.round((c0 + c1 * x) / step) * step
+        fit = fit_polynomial(x, y, 1)
+        floored = with_std_floor(fit, step / np.sqrt(12.0))
+        k = 2.36   # Student t, 7 degrees of freedom
+        inside_raw += abs(fit.coefficients[0] - c0) <= k * fit.standard_errors[0]
+        inside_floor += abs(floored.coefficients[0] - c0) <= k * floored.standard_errors[0]
+    assert inside_floor / trials >= 0.93
+    assert inside_floor >= inside_raw

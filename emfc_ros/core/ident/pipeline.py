@@ -39,7 +39,7 @@ from emfc_ros.core.ident.frf import estimate_frf, FrequencyResponseData
 from emfc_ros.core.ident.local_polynomial import local_polynomial_frf
 from emfc_ros.core.ident.mimo import estimate_two_input_frf
 from emfc_ros.core.ident.pipeline_config import IdentificationConfig
-from emfc_ros.core.ident.static_fit import fit_polynomial, PolynomialFit
+from emfc_ros.core.ident.static_fit import fit_polynomial, PolynomialFit, with_std_floor
 from emfc_ros.core.ident.tf_fit import OrderSelection, select_order
 
 Progress = Callable[[str, float, str], None]
@@ -138,11 +138,17 @@ class StaticResult:
     points : dict of str to (ndarray, ndarray)
         The plateau means behind each fit, ``(x, y)`` in the fit's units (``U`` [V] and
         ``I`` [A] for the amplifiers, ``I`` [A] and ``F`` [N] for the load changer).
+    std_floor : dict of str to float
+        Smallest residual standard deviation behind each fit's standard errors, in the unit
+        of y: the current monitors' ADC step over ``sqrt(12)`` (plateau means of currents
+        quantised without dither are off by up to half a step; for the load changer seen
+        through its slope), :func:`~emfc_ros.core.ident.static_fit.with_std_floor`.
     """
 
     fits: Dict[str, PolynomialFit] = field(default_factory=dict)
     n_plateaus: Dict[str, int] = field(default_factory=dict)
     points: Dict[str, Tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    std_floor: Dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -600,6 +606,10 @@ def _static_step(result: IdentificationResult, channels: Mapping[str, np.ndarray
     if not chosen:
         return
     pan_force = channels.get('pan_force_N', channels.get('load_changer_force_N'))
+    # the current monitors' ADC step in amperes: plateau means of quantised currents are off
+    # by up to half of it without dither (see static_fit.with_std_floor)
+    conv = result.config.balance.converters
+    current_step_A = 2.0 * conv.adc_range_V / 2.0 ** conv.adc_bits / conv.current_monitor_V_per_A
     jobs = [('coil_amplifier', 'coil_setpoint_V', 'coil_current_A', cfg.amplifier_degree,
              'U', 'I', 'V', 'A'),
             ('load_changer_amplifier', 'load_changer_setpoint_V', 'load_changer_current_A',
@@ -617,8 +627,10 @@ def _static_step(result: IdentificationResult, channels: Mapping[str, np.ndarray
             continue
         with warnings.catch_warnings():
             warnings.simplefilter('ignore')
-            static.fits[key] = fit_polynomial(np.array(xm), np.array(ym), degree,
-                                              x_name=xs, y_name=ys, x_unit=xu, y_unit=yu)
+            static.std_floor[key] = current_step_A / math.sqrt(12.0)
+            static.fits[key] = with_std_floor(
+                fit_polynomial(np.array(xm), np.array(ym), degree, x_name=xs, y_name=ys,
+                               x_unit=xu, y_unit=yu), static.std_floor[key])
         static.n_plateaus[key] = len(xm)
         static.points[key] = (np.array(xm), np.array(ym))
         if key == 'load_changer_amplifier' and pan_force is not None:
@@ -632,9 +644,14 @@ def _static_step(result: IdentificationResult, channels: Mapping[str, np.ndarray
             if len(set(np.round(im, 12))) > cfg.load_changer_degree:
                 with warnings.catch_warnings():
                     warnings.simplefilter('ignore')
-                    static.fits['load_changer'] = fit_polynomial(
-                        np.array(im), np.array(fm), cfg.load_changer_degree, x_name='I',
-                        y_name='F', x_unit='A', y_unit='N')
+                    fit = fit_polynomial(np.array(im), np.array(fm), cfg.load_changer_degree,
+                                         x_name='I', y_name='F', x_unit='A', y_unit='N')
+                    # the current (x) is quantised: its step seen through the slope
+                    slope = abs(float(np.polynomial.polynomial.polyval(
+                        np.median(im), np.polynomial.polynomial.polyder(fit.coefficients))))
+                    static.std_floor['load_changer'] = slope * current_step_A / math.sqrt(12.0)
+                    static.fits['load_changer'] = with_std_floor(
+                        fit, static.std_floor['load_changer'])
                 static.n_plateaus['load_changer'] = len(im)
                 static.points['load_changer'] = (np.array(im), np.array(fm))
     if not static.fits:
@@ -850,6 +867,17 @@ def _static_dict(static: Optional[StaticResult]) -> Optional[dict]:
                                                        units))],
                     'r_squared': fit.r_squared, 'residual_std': fit.residual_std,
                     'residual_std_unit': fit.y_unit, 'n_plateaus': static.n_plateaus.get(key)}
+        floor = static.std_floor.get(key, 0.0)
+        dof = (static.n_plateaus.get(key) or 0) - (fit.degree + 1)
+        out[key]['residual_std_floor'] = floor
+        if fit.residual_std < floor:
+            # the quantisation floor (a known distribution) sets the standard errors
+            out[key]['std_degrees_of_freedom'] = None
+            out[key]['coverage_factor_95'] = 1.96
+        elif dof > 0:
+            # Student t: the standard errors rest on the residuals of a few plateaus
+            out[key]['std_degrees_of_freedom'] = dof
+            out[key]['coverage_factor_95'] = float(stats.t.ppf(0.975, dof))
     return out
 
 

@@ -14,7 +14,8 @@ Results print in the paper's form (Table 1), e.g.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+import math
 from typing import Dict, Mapping, Optional, Sequence
 import warnings
 
@@ -393,6 +394,35 @@ def linear_least_squares(design: np.ndarray, y: np.ndarray, *,
     r2 = 1.0 - rss / tss if tss > 0.0 else float('nan')
     return LinearFit(theta, np.sqrt(np.maximum(np.diag(cov), 0.0)), cov, r2,
                      float(np.sqrt(s2 * n / np.sum(sw * sw))), cond, n)
+
+
+def with_std_floor(fit: PolynomialFit, floor: float) -> PolynomialFit:
+    """
+    The same fit with its covariance computed from ``max(residual_std, floor)``.
+
+    For plateau means that a converter quantises without dither (noise well below one step),
+    the residual scatter of a few plateaus can fall below the quantisation error it stands for,
+    ``step / sqrt(12)`` per mean; the floor keeps the covariance from claiming less.
+
+    Parameters
+    ----------
+    fit : PolynomialFit
+        The fit.
+    floor : float
+        Smallest residual standard deviation, in the unit of y (0 leaves the fit as it is).
+
+    Returns
+    -------
+    PolynomialFit
+        The fit with ``covariance`` and ``standard_errors`` scaled (``residual_std`` kept).
+    """
+    if not floor > 0.0 or not fit.residual_std < floor:
+        return fit
+    factor = (floor / fit.residual_std) ** 2 if fit.residual_std > 0.0 else math.inf
+    if not math.isfinite(factor):
+        return fit
+    cov = fit.covariance * factor
+    return replace(fit, covariance=cov, standard_errors=np.sqrt(np.maximum(np.diag(cov), 0.0)))
 
 
 def fit_polynomial(x: np.ndarray, y: np.ndarray, degree: int, *,
