@@ -5,7 +5,9 @@ The signal generator, consumer-paced, drives the plant simulator, which owns tim
 publishes /clock and runs as fast as the excitation arrives). The two processes may come
 up in any order: the generator holds sample 0 until the plant's subscription and
 acknowledgements are matched and re-sends a window that is not acknowledged (README,
-signal_generator). Record with
+signal_generator). The plant subscribes to the excitation only once ``min_subscribers``
+(default 1) subscriptions to ``/emfc/measurements`` are there, so the experiment starts
+when a recorder listens, started before or after the launch:
 ``ros2 bag record -s mcap /emfc/excitation /emfc/measurements ...``.
 
     ros2 launch emfc_ros sim_experiment.launch.py load_mass_kg:=0.1274
@@ -34,7 +36,12 @@ def generate_launch_description():
         DeclareLaunchArgument('load_mass_kg', default_value='0.1274',
                               description='mass on the pan [kg]; 0.1274 balances the default '
                                           'lever at zero coil current'),
-        DeclareLaunchArgument('seed', default_value='0'),
+        DeclareLaunchArgument('seed', default_value='0',
+                              description='seed of the simulated noise'),
+        DeclareLaunchArgument('min_subscribers', default_value='1',
+                              description='the experiment starts once this many subscriptions '
+                                          'to /emfc/measurements (a recorder) matched; 0: at '
+                                          'once'),
         Node(
             package='emfc_ros', executable='plant_simulator', name='plant_simulator',
             namespace='emfc', output='screen', additional_env=env,
@@ -44,6 +51,8 @@ def generate_launch_description():
                 'load_mass_kg': ParameterValue(LaunchConfiguration('load_mass_kg'),
                                                value_type=float),
                 'seed': ParameterValue(LaunchConfiguration('seed'), value_type=int),
+                'min_subscribers': ParameterValue(LaunchConfiguration('min_subscribers'),
+                                                  value_type=int),
             }],
         ),
         Node(

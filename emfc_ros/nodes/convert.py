@@ -239,8 +239,8 @@ def node_diagnostics(node: object, aspect: str, level: bytes, message: str,
     return msg
 
 
-def subscribe_device_inputs(node: Node, on_excitation: Callable, on_joint_command: Callable,
-                            on_array_command: Callable) -> None:
+def subscribe_device_inputs(node: Node, on_excitation: Optional[Callable],
+                            on_joint_command: Callable, on_array_command: Callable) -> None:
     """
     Subscribe a node to the inputs of the device interface (design section 4).
 
@@ -253,8 +253,24 @@ def subscribe_device_inputs(node: Node, on_excitation: Callable, on_joint_comman
     node : rclpy.node.Node
         The node.
     on_excitation, on_joint_command, on_array_command : callable
-        The callbacks, in that order.
+        The callbacks, in that order; ``on_excitation`` None: no excitation subscription
+        (the node subscribes later, :func:`subscribe_excitation`).
     """
-    node.create_subscription(Float64MultiArray, 'excitation', on_excitation, BLOCK_QOS)
+    if on_excitation is not None:
+        subscribe_excitation(node, on_excitation)
     node.create_subscription(JointState, 'joint_commands', on_joint_command, CONTROL_QOS)
     node.create_subscription(Float64MultiArray, 'commands', on_array_command, CONTROL_QOS)
+
+
+def subscribe_excitation(node: Node, on_excitation: Callable) -> None:
+    """
+    Subscribe a node to excitation blocks on ``excitation``.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node.
+    on_excitation : callable
+        Called with each ``std_msgs/Float64MultiArray`` block.
+    """
+    node.create_subscription(Float64MultiArray, 'excitation', on_excitation, BLOCK_QOS)

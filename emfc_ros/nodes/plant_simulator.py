@@ -76,7 +76,7 @@ from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V, saturation_coun
 from emfc_ros.core.sim.simulator import Simulator
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
-    node_diagnostics, subscribe_device_inputs)
+    node_diagnostics, subscribe_device_inputs, subscribe_excitation)
 from emfc_ros.nodes.spin import node_main
 
 DEFAULT_BALANCE = 'balance_default.yaml'
@@ -123,6 +123,10 @@ PARAMETERS = {
                                 'answers the pending state whatever its stamp (ros2_control '
                                 'topic-based hardware stamps with its own clock)'),
     'publish_groups': (True, 'also publish measurements/position, current and force'),
+    'min_subscribers': (0, 'owner mode: subscribe to the excitation only once this many '
+                           'subscriptions to measurements have matched [count], 0 to 100; a '
+                           'consumer-paced generator holds sample 0 until then, so a recorder '
+                           'started after the plant loses nothing; fixed at start-up'),
     'control.enabled': (False, 'run the position controller inside the sample loop (closed '
                                'loop, docs/closed_loop.md); owner and wall modes only; the '
                                'coil excitation is then added to the controller output'),
@@ -240,8 +244,17 @@ class PlantSimulatorNode(Node):
         self._pub_clock = self.create_publisher(Clock, '/clock', 10) \
             if self._mode in ('owner', 'lockstep') else None
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        subscribe_device_inputs(self, self._on_excitation, self._on_joint_command,
-                                self._on_array_command)
+        self._min_subscribers = self._min_subscribers_param()
+        self._excitation_timer = None
+        hold = self._mode == 'owner' and self._min_subscribers > 0
+        subscribe_device_inputs(self, None if hold else self._on_excitation,
+                                self._on_joint_command, self._on_array_command)
+        if hold:
+            # Steady timer: the excitation opens once the measurements are listened to.
+            self.get_logger().info(f'waiting for {self._min_subscribers} subscription(s) to '
+                                   'measurements before subscribing to the excitation')
+            self._excitation_timer = self.create_timer(
+                0.05, self._open_excitation, clock=RosClock(clock_type=ClockType.STEADY_TIME))
         self.create_service(Trigger, 'reset', self._srv_reset)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._publish_descriptions()
@@ -256,6 +269,26 @@ class PlantSimulatorNode(Node):
                               clock=RosClock(clock_type=ClockType.STEADY_TIME))
         if self._error:
             self._publish_diagnostics()     # the status says why at start, not after 1 s
+
+    def _min_subscribers_param(self) -> int:
+        value = self._param('min_subscribers')
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 100:
+            self._fail(f'min_subscribers must be a whole number from 0 to 100, got {value!r}; '
+                       'using 0')
+            return 0
+        return value
+
+    def _open_excitation(self) -> None:
+        """Subscribe to the excitation once enough subscriptions to measurements matched."""
+        matched = self._pub['measurements'].get_subscription_count()
+        if matched < self._min_subscribers:
+            return
+        self._excitation_timer.cancel()
+        self.destroy_timer(self._excitation_timer)
+        self._excitation_timer = None
+        subscribe_excitation(self, self._on_excitation)
+        self.get_logger().info(f'{matched} subscription(s) to measurements matched: '
+                               'subscribed to the excitation')
 
     def _fail(self, reason: str) -> None:
         """Report a configuration error; the node keeps running but does not simulate."""
@@ -689,7 +722,9 @@ class PlantSimulatorNode(Node):
                        'command_N': self._command_N,
                        'command_watchdog_trips': self._command_watchdog_trips,
                        'bad_commands': self._bad_commands,
-                       'last_error': self._last_error, 'error': self._error})
+                       'last_error': self._last_error, 'error': self._error,
+                       'min_subscribers': self._min_subscribers,
+                       'excitation_subscribed': self._excitation_timer is None})
         if self._mode == 'lockstep':
             lock = self._lock
             wall = time.monotonic() - lock.first_wall_s if lock.started else 0.0
@@ -710,6 +745,9 @@ class PlantSimulatorNode(Node):
         if self._sim is None or self._error:
             level = DiagnosticStatus.ERROR
         message = self._error or ('excitation defects' if defects else 'ok')
+        if not self._error and self._excitation_timer is not None:
+            message = (f'waiting for {self._min_subscribers} subscription(s) to measurements '
+                       'before subscribing to the excitation')
         self._pub_diag.publish(node_diagnostics(self, 'simulation', level, message, values))
 
 

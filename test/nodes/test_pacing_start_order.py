@@ -3,8 +3,9 @@ No lost start: a consumer-paced signal generator and a plant simulator in separa
 
 The two nodes are started as ``ros2 run`` starts them (``<prefix>/lib/emfc_ros/<name>``),
 with the parameters ``launch/sim_experiment.launch.py`` gives them, in both orders and
-with a pause of a few seconds between the two starts: the plant answers every sample of
-the experiment from sample 0 and the generator reaches ``done``. A consumer that never
+with a pause of a few seconds between the two starts, and with the listener of the
+measurements (a recorder) coming last: the plant answers every sample of the experiment
+from sample 0, the listener gets them all and the generator reaches ``done``. A consumer that never
 acknowledges puts the generator in state ``error`` on its status and on ``/diagnostics``.
 """
 
@@ -97,16 +98,18 @@ def generator_argv(experiment_file, **extra):
     return node_argv('signal_generator', params)
 
 
-def plant_argv():
+def plant_argv(min_subscribers=1):
     params = dict(launch_literal_parameters()['plant_simulator'])
-    params.update({'load_mass_kg': LOAD_MASS_KG, 'seed': 0})
+    # min_subscribers 1, the launch file's default: the plant waits for the test's observer
+    # of measurements as it waits for a recorder.
+    params.update({'load_mass_kg': LOAD_MASS_KG, 'seed': 0, 'min_subscribers': min_subscribers})
     return node_argv('plant_simulator', params)
 
 
 class Observer:
     """Watches the generator's status and diagnostics and the plant's measurements."""
 
-    def __init__(self, context, silent_consumer=False):
+    def __init__(self, context, silent_consumer=False, listen=True):
         self.node = rclpy.create_node('observer', namespace='/emfc', context=context)
         self.status = None
         self.statuses = []
@@ -123,17 +126,22 @@ class Observer:
         self.node.create_subscription(Bool, 'signal_generator/done',
                                       lambda m: setattr(self, 'done', m.data), LATCHED_QOS)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 50)
-        self.node.create_subscription(Float64MultiArray, 'measurements', self._on_block,
-                                      BLOCK_QOS)
-        self.node.create_subscription(
-            String, 'measurements/description',
-            lambda m: setattr(self, 'description', msg_to_description(m)), LATCHED_QOS)
+        if listen:
+            self.listen()
         if silent_consumer:
             # A consumer of the excitation that matches like the plant and never answers.
             self.ack = self.node.create_publisher(UInt64, 'excitation/consumed', CONTROL_QOS)
             self.node.create_subscription(Float64MultiArray, 'excitation',
                                           lambda m: self.excitation.append(msg_to_block(m)),
                                           BLOCK_QOS)
+
+    def listen(self):
+        """Subscribe to the plant's measurements (as a recorder does)."""
+        self.node.create_subscription(Float64MultiArray, 'measurements', self._on_block,
+                                      BLOCK_QOS)
+        self.node.create_subscription(
+            String, 'measurements/description',
+            lambda m: setattr(self, 'description', msg_to_description(m)), LATCHED_QOS)
 
     def _on_status(self, msg):
         self.status = json.loads(msg.data)
@@ -174,17 +182,30 @@ def test_the_launch_file_gives_the_parameters_this_test_uses():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize('first', ['signal_generator', 'plant_simulator'])
-def test_either_start_order_answers_the_whole_experiment(tmp_path, processes, executor,
-                                                         ros_context, first):
+@pytest.mark.parametrize('first', ['signal_generator', 'plant_simulator', 'listener_last'])
+def test_any_start_order_answers_the_whole_experiment(tmp_path, processes, executor,
+                                                      ros_context, first):
     experiment_file = _write_experiment(tmp_path / 'experiment.yaml')
     excitation = experiment_from_config(unflatten(EXPERIMENT))
     total = excitation.total_samples
     assert total == 5000 and total > 8 * BLOCK_SIZE      # more than one window
-    observer = Observer(ros_context)
+    observer = Observer(ros_context, listen=first != 'listener_last')
     executor.add_node(observer.node)
 
-    if first == 'signal_generator':
+    if first == 'listener_last':
+        # Both nodes up, nothing listens to the measurements yet (a recorder started
+        # late): the plant does not take the excitation, the generator holds sample 0.
+        plant = processes.start(plant_argv())
+        gen = processes.start(generator_argv(experiment_file))
+        assert ros_harness.spin_until(
+            executor, lambda: observer.status is not None and observer.plant_seen
+            and observer.status['waiting'].startswith('consumer'), START_TIMEOUT_S), \
+            f'{observer.status}\n{gen.output()}\n{plant.output()}'
+        _pause(executor, PAUSE_S)
+        assert observer.status['next_sample_index'] == 0, observer.status
+        assert observer.status['waiting'].startswith('consumer'), observer.status
+        observer.listen()
+    elif first == 'signal_generator':
         gen = processes.start(generator_argv(experiment_file))
         # Autostarted, it holds sample 0 and says so while no consumer is there.
         assert ros_harness.spin_until(
