@@ -320,9 +320,17 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
                 Parameter('publish_groups', value=False)])
             device_name = 'plant_simulator'
         nodes.append(device_node)
+        # The simulator owns time: the recorder and the generator take it from /clock, so
+        # the bag's stamps and duration are simulated time, and /clock is recorded for
+        # `ros2 bag play --clock`. On the bridge the device runs in real time: wall clock.
+        sim_time = not on_bridge
+        topics = list(plan.recording.topics)
+        if sim_time and '/clock' not in topics:
+            topics.append('/clock')
         recorder = RecorderNode(namespace=ns, parameter_overrides=[
+            Parameter('use_sim_time', value=sim_time),
             Parameter('output', value=str(bag)),
-            Parameter('topics', value=list(plan.recording.topics)),
+            Parameter('topics', value=topics),
             Parameter('flush_period_s', value=float(plan.recording.flush_period_s)),
             Parameter('max_bag_size_B', value=int(plan.recording.max_bag_size_B)),
             Parameter('max_bag_duration_s', value=float(plan.recording.max_bag_duration_s)),
@@ -334,6 +342,7 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
         nodes.append(recorder)
         pacing = plan.bridge.pacing if on_bridge else 'consumer'
         generator = SignalGeneratorNode(namespace=ns, parameter_overrides=[
+            Parameter('use_sim_time', value=sim_time),
             Parameter('experiment_file', value=str(experiment_path)),
             Parameter('pacing', value=pacing),
             Parameter('block_size', value=int(plan.block_size)),

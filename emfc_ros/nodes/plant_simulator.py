@@ -74,6 +74,7 @@ from emfc_ros.core.sim.channels import channel_names, channel_units, MEASURED, R
 from emfc_ros.core.sim.closed_loop import ClosedLoopSimulator
 from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V, saturation_counts
 from emfc_ros.core.sim.simulator import Simulator
+from emfc_ros.core.sim.state_rate import StateRateLimiter
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
     node_diagnostics, subscribe_device_inputs, subscribe_excitation)
@@ -123,6 +124,12 @@ PARAMETERS = {
                                 'answers the pending state whatever its stamp (ros2_control '
                                 'topic-based hardware stamps with its own clock)'),
     'publish_groups': (True, 'also publish measurements/position, current and force'),
+    'max_state_wall_rate_Hz': (500.0, 'owner mode: at most this many joint_states per second '
+                                      'of wall time [Hz] (evenly chosen from those due at '
+                                      'state_rate_Hz of simulated time; the others are counted '
+                                      'as states_decimated), so that subscribers keep up when '
+                                      'the simulation runs faster than real time; 0: no limit; '
+                                      'fixed at start-up'),
     'min_subscribers': (0, 'owner mode: subscribe to the excitation only once this many '
                            'subscriptions to measurements have matched [count], 0 to 100; a '
                            'consumer-paced generator holds sample 0 until then, so a recorder '
@@ -222,6 +229,7 @@ class PlantSimulatorNode(Node):
         self._last_position_m = 0.0
         self._bad_commands = 0
         self._lock = _Lockstep()
+        self._states = self._state_limiter()
         if self._mode not in TIME_MODES:
             self._fail(f'time_mode must be one of {list(TIME_MODES)}, got {self._mode!r}')
         elif self._mode == 'lockstep':
@@ -241,7 +249,9 @@ class PlantSimulatorNode(Node):
         # Deep enough for a block's burst of states (a block of 1000 samples at 10 kHz
         # with states at 1 kHz is 100 messages).
         self._pub_state = self.create_publisher(JointState, 'joint_states', STATE_QOS)
-        self._pub_clock = self.create_publisher(Clock, '/clock', 10) \
+        # One /clock per block, as deep as the blocks: a recorder that falls behind for a
+        # moment must not lose ticks (a writer's KEEP_LAST history drops them silently).
+        self._pub_clock = self.create_publisher(Clock, '/clock', BLOCK_QOS) \
             if self._mode in ('owner', 'lockstep') else None
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._min_subscribers = self._min_subscribers_param()
@@ -270,11 +280,20 @@ class PlantSimulatorNode(Node):
         if self._error:
             self._publish_diagnostics()     # the status says why at start, not after 1 s
 
+    def _state_limiter(self) -> StateRateLimiter:
+        value = self._param('max_state_wall_rate_Hz')
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+                not math.isfinite(value) or value < 0.0:
+            self._fail(f'max_state_wall_rate_Hz must be a number >= 0 [Hz], got {value!r}; '
+                       'using 500 Hz until the node is restarted with a valid value')
+            value = PARAMETERS['max_state_wall_rate_Hz'][0]
+        return StateRateLimiter(float(value))
+
     def _min_subscribers_param(self) -> int:
         value = self._param('min_subscribers')
         if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 100:
             self._fail(f'min_subscribers must be a whole number from 0 to 100, got {value!r}; '
-                       'using 0')
+                       'using 0 until the node is restarted with a valid value')
             return 0
         return value
 
@@ -388,7 +407,8 @@ class PlantSimulatorNode(Node):
     def _on_set_parameters(self, params: List[Parameter]) -> SetParametersResult:
         fixed = ('sample_rate_Hz', 'block_size', 'time_mode', 'seed', 'noise',
                  'quantisation', 'substeps', 'hold', 'publish_groups', 'command_delay_periods',
-                 'lockstep_match') + tuple(n for n in PARAMETERS if n.startswith(CONTROL_PREFIX))
+                 'lockstep_match', 'min_subscribers', 'max_state_wall_rate_Hz') + \
+            tuple(n for n in PARAMETERS if n.startswith(CONTROL_PREFIX))
         if self._mode == 'lockstep':
             fixed += ('state_rate_Hz',)
         load = None
@@ -478,7 +498,7 @@ class PlantSimulatorNode(Node):
         self._blocks_out += 1
 
     def _simulate(self, first_index: int, setpoints: np.ndarray, stamp_ns: int) -> None:
-        """Apply the effort command, simulate, publish the block, the state and the clock."""
+        """Apply the effort command, simulate, publish the clock, the block and the states."""
         command = self._command_setpoint_V()
         if command:
             setpoints = setpoints.copy()
@@ -487,11 +507,13 @@ class PlantSimulatorNode(Node):
         for key, count in saturation_counts(out, self._names, self._sim.params).items():
             self._saturation[key] = self._saturation.get(key, 0) + count
         self._last_position_m = float(out[self._row['position_m'], -1])
-        self._publish_block(first_index, out)
-        self._publish_states(out, stamp_ns)
         self._sim_samples += setpoints.shape[1]
         if self._pub_clock is not None:
+            # Tick, then /clock (the end of the block: when its last sample exists), then
+            # the outputs, so that a use_sim_time subscriber stamps them with simulated time.
             self._pub_clock.publish(Clock(clock=_time_msg(self._sim_time_ns())))
+        self._publish_block(first_index, out)
+        self._publish_states(out, stamp_ns)
 
     def _sim_time_ns(self) -> int:
         return int(round(self._sim_samples * 1e9 / self._rate))
@@ -688,7 +710,10 @@ class PlantSimulatorNode(Node):
             else position
         velocity = np.gradient(truth) * self._rate if n > 1 else np.zeros(n)
         effort = out[self._row['coil_force_N']]
-        for i in range(0, n, step):
+        candidates = np.arange(0, n, step)
+        chosen = self._states.choose(len(candidates), time.monotonic()) \
+            if self._mode == 'owner' else np.arange(len(candidates))
+        for i in candidates[chosen]:
             msg = JointState()
             msg.header.stamp = _time_msg(first_stamp_ns + int(round(i * 1e9 / self._rate)))
             msg.name = [JOINT]
@@ -696,6 +721,7 @@ class PlantSimulatorNode(Node):
             msg.velocity = [float(velocity[i])]
             msg.effort = [float(effort[i])]
             self._pub_state.publish(msg)
+        self._states.published += len(chosen)
 
     # -- services and diagnostics ----------------------------------------------------------
 
@@ -724,6 +750,8 @@ class PlantSimulatorNode(Node):
                        'bad_commands': self._bad_commands,
                        'last_error': self._last_error, 'error': self._error,
                        'min_subscribers': self._min_subscribers,
+                       'states_published': self._states.published,
+                       'states_decimated': self._states.decimated,
                        'excitation_subscribed': self._excitation_timer is None})
         if self._mode == 'lockstep':
             lock = self._lock

@@ -7,8 +7,13 @@ node's parameters and the package version in the bag's ``custom_data``, and cras
 (data reach the disk every ``flush_period_s``; ``emfc-bag-repair`` makes a killed
 recording readable). Messages are subscribed to raw (serialized CDR, never deserialised)
 with a QoS matching the publishers' offered QoS, stamped with the receive time on the node's
-clock (``use_sim_time`` works) and written by a writer thread fed through a queue, so the
-executor never waits for the disk.
+clock and written by a writer thread fed through a queue, so the executor never waits for the
+disk. With ``use_sim_time`` (a simulator that owns time publishes ``/clock``) the stamps, and
+so the bag's start and duration, are simulated time, as with ``ros2 bag record
+--use-sim-time``; record ``/clock`` too for ``ros2 bag play --clock``. The bag's custom data
+say which clock stamped it (``emfc_ros.clock``: ``simulated`` or ``wall``) and keep the wall
+time the recording started (``emfc_ros.start_time_ns``). Timers (discovery, diagnostics) run
+on the steady clock whatever the node clock.
 
 Topics (relative to the node namespace):
 
@@ -38,6 +43,7 @@ from typing import Dict, List, Optional, Tuple
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rcl_interfaces.srv import GetParameters, ListParameters
+from rclpy.clock import Clock as RosClock, ClockType
 from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
@@ -290,7 +296,8 @@ class RecorderNode(Node):
         self.create_service(Trigger, '~/start', self._srv_start)
         self.create_service(Trigger, '~/stop', self._srv_stop)
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.create_timer(1.0, self._publish_diagnostics)
+        self._steady = RosClock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(1.0, self._publish_diagnostics, clock=self._steady)
         initial = self._on_set_parameters([self.get_parameter(n) for n in PARAMETERS])
         if not initial.successful:
             self._state, self._error = 'error', initial.reason
@@ -373,8 +380,9 @@ class RecorderNode(Node):
         self._unrecordable = {}
         self._node_parameters, self._unreachable, self._fetches = {}, {}, {}
         queued.set_custom_data('emfc_ros.version', __version__)
-        queued.set_custom_data('emfc_ros.start_time_ns',
-                               str(self.get_clock().now().nanoseconds))
+        # Wall time, whatever clock stamps the messages (simulated time starts near 0).
+        queued.set_custom_data('emfc_ros.start_time_ns', str(time.time_ns()))
+        queued.set_custom_data('emfc_ros.clock', self._clock_kind())
         description = self._param('experiment_description')
         if description:
             queued.set_custom_data('emfc_ros.experiment', description)
@@ -382,10 +390,14 @@ class RecorderNode(Node):
             queued.set_custom_data(key, text)
         self._discover()
         self._discovery_timer = self.create_timer(float(self._param('discovery_period_s')),
-                                                  self._discover)
+                                                  self._discover, clock=self._steady)
         self._publish_status()
-        self.get_logger().info(f'recording to {path}')
+        self.get_logger().info(f'recording to {path} (stamps: {self._clock_kind()} time)')
         return True, f'recording to {path}'
+
+    def _clock_kind(self) -> str:
+        """'simulated' when the node clock is ``/clock`` (``use_sim_time``), else 'wall'."""
+        return 'simulated' if self.get_parameter('use_sim_time').value else 'wall'
 
     def _stop(self) -> Tuple[bool, str]:
         if self._writer is None:

@@ -190,6 +190,10 @@ def test_bridge_run_on_the_emulator_matches_the_simulator_target(tmp_path):
     shutil.copytree(out / 'bag', blind)
     meta = yaml.safe_load((blind / 'metadata.yaml').read_text())
     custom = meta['rosbag2_bagfile_information']['custom_data']
+    # The device runs in real time: the bag is stamped with the wall clock, no /clock.
+    assert custom['emfc_ros.clock'] == 'wall'
+    assert '/clock' not in {t['topic_metadata']['name'] for t in
+                            meta['rosbag2_bagfile_information']['topics_with_message_count']}
     for key in ('emfc_ros.plant_configuration', 'emfc_ros.node_parameters'):
         custom.pop(key, None)
     (blind / 'metadata.yaml').write_text(yaml.safe_dump(meta))

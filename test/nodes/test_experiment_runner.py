@@ -13,9 +13,11 @@ import sys
 
 import numpy as np
 import pytest
+from rosbags.highlevel import AnyReader
 import yaml
 
 from emfc_ros.core.bag import read_metadata, read_streams
+from emfc_ros.core.blocks import unpack
 from emfc_ros.core.paths import config_file
 from emfc_ros.core.run_plan import load_plan
 from emfc_ros.core.signals import experiment_from_config
@@ -25,6 +27,10 @@ import ros_harness
 def _runner() -> str:
     return shutil.which('emfc-experiment') or str(Path(sys.executable).parent /
                                                   'emfc-experiment')
+
+
+def _bag_info() -> str:
+    return shutil.which('emfc-bag-info') or str(Path(sys.executable).parent / 'emfc-bag-info')
 
 
 def _identify_cli() -> str:
@@ -81,6 +87,39 @@ def test_default_job_produces_all_outputs_and_an_exact_bag(default_run):
     assert 0.05 < run['simulator']['load_mass_kg_used'] < 0.2     # the balancing mass
     summary = (out / 'summary.md').read_text()
     assert 'experiment' in summary and 'Read back 490000 samples' in summary
+
+
+@pytest.mark.slow
+def test_the_bag_carries_simulated_time(default_run):
+    """Stamps, start and duration are simulated time; /clock is recorded (issue 13)."""
+    out, result = default_run
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    total, rate = 490000, 10000.0
+    # An independent reader: rosbags.
+    with AnyReader([out / 'bag']) as reader:
+        duration_s = (reader.end_time - reader.start_time) * 1e-9
+        topics = {c.topic for c in reader.connections}
+        blocks = [c for c in reader.connections if c.topic == '/emfc/measurements']
+        ends, stamps = [], []
+        for connection, stamp, raw in reader.messages(connections=blocks):
+            msg = reader.deserialize(raw, connection.msgtype)
+            block = unpack([(d.label, int(d.size), int(d.stride)) for d in msg.layout.dim],
+                           int(msg.layout.data_offset), msg.data)
+            ends.append((block.first_sample_index + block.n_samples) / rate)
+            stamps.append(stamp * 1e-9)
+    # The experiment lasts total / rate of simulated time (49 s); the wall time it took
+    # was a fraction of that.
+    assert abs(duration_s - total / rate) <= 0.2, duration_s
+    assert '/clock' in topics
+    # Each block is stamped with the simulated time its last sample exists (/clock is
+    # published before the outputs), within one block.
+    np.testing.assert_allclose(stamps, ends, atol=0.1 + 1e-9)
+    custom = read_metadata(out / 'bag')['custom_data']
+    assert custom['emfc_ros.clock'] == 'simulated'
+    info = subprocess.run([_bag_info(), str(out / 'bag')], capture_output=True, text=True,
+                          timeout=60)
+    assert info.returncode == 0, info.stderr
+    assert 'of simulated time' in info.stdout and 'Recorded (wall)' in info.stdout
 
 
 def _numbers(results: dict) -> dict:

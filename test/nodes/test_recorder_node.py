@@ -10,6 +10,7 @@ import json
 from pathlib import Path
 import signal
 import sys
+import time
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
@@ -459,7 +460,9 @@ def test_use_sim_time_stamps_messages_with_the_simulated_clock(executor, ros_con
     assert stamps == [sim_s * 10 ** 9] * 3
     meta = read_metadata(bag)
     assert meta['starting_time']['nanoseconds_since_epoch'] == sim_s * 10 ** 9
-    assert int(meta['custom_data']['emfc_ros.start_time_ns']) <= sim_s * 10 ** 9
+    # The custom data say which clock stamped the bag and keep the wall start time.
+    assert meta['custom_data']['emfc_ros.clock'] == 'simulated'
+    assert abs(int(meta['custom_data']['emfc_ros.start_time_ns']) - time.time_ns()) < 600e9
 
 
 def test_invalid_start_up_parameters_leave_the_node_in_error(executor, ros_context, tmp_path):

@@ -20,6 +20,14 @@ def _time(ns: int) -> str:
     return f'{stamp:%Y-%m-%d %H:%M:%S.%f} UTC ({ns / 1e9:.9f})'
 
 
+def _clock_note(clock: str) -> str:
+    if clock == 'simulated':
+        return ' of simulated time (stamps from /clock)'
+    if clock == 'wall':
+        return ' of wall time'
+    return ''
+
+
 def bag_info(bag_path, streams: bool = False) -> str:
     """
     Describe a bag for people.
@@ -47,12 +55,14 @@ def bag_info(bag_path, streams: bool = False) -> str:
     size = sum((bag / f).stat().st_size for f in files if (bag / f).is_file())
     start = int(meta['starting_time']['nanoseconds_since_epoch'])
     duration = int(meta['duration']['nanoseconds'])
+    custom = meta.get('custom_data') or {}
+    clock = str(custom.get('emfc_ros.clock', ''))
     lines: List[str] = [
         f'Files:             {", ".join(files)}',
         f'Bag size:          {size / 2**20:.3f} MiB',
         f'Storage id:        {meta.get("storage_identifier")}  (metadata version '
         f'{meta.get("version")})',
-        f'Duration:          {duration / 1e9:.9f} s',
+        f'Duration:          {duration / 1e9:.9f} s{_clock_note(clock)}',
         f'Start:             {_time(start)}',
         f'End:               {_time(start + duration)}',
         f'Messages:          {meta.get("message_count")}',
@@ -62,7 +72,8 @@ def bag_info(bag_path, streams: bool = False) -> str:
         lines.append(f'  Topic: {t["name"]} | Type: {t["type"]} | Count: '
                      f'{entry["message_count"]} | Serialization Format: '
                      f'{t["serialization_format"]}')
-    custom = meta.get('custom_data') or {}
+    if clock == 'simulated' and 'emfc_ros.start_time_ns' in custom:
+        lines.insert(6, f'Recorded (wall):   {_time(int(custom["emfc_ros.start_time_ns"]))}')
     if custom:
         lines.append('Custom data:')
         for key in sorted(custom):
