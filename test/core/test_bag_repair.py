@@ -139,3 +139,18 @@ def test_repair_and_info_commands(tmp_path):
     assert '/s: 100 Hz, epoch 1, samples 0 to 499' in text
     assert 'emfc_ros.version: 9.9' in text
     assert bag_info.main([str(tmp_path / 'nothing')]) == 2
+
+
+@pytest.mark.parametrize('clock, note', [('simulated', 'of simulated time (stamps from /clock)'),
+                                         ('wall', 'of wall time'), (None, '')])
+def test_info_says_which_clock_stamped_the_bag(tmp_path, clock, note):
+    bag = tmp_path / 'b'
+    writer, _ = killed_bag(bag, n_blocks=4, flush_every=4)
+    if clock is not None:
+        writer.set_custom_data('emfc_ros.clock', clock)
+        writer.set_custom_data('emfc_ros.start_time_ns', str(1_795_600_000 * 10 ** 9))
+    writer.close()
+    from emfc_ros.core.bag.info import bag_info as info_text
+    duration = [line for line in info_text(bag).splitlines() if line.startswith('Duration:')]
+    assert duration == [f'Duration:          0.000000003 s {note}'.rstrip()]
+    assert ('Recorded (wall):   2026-11-25' in info_text(bag)) == (clock == 'simulated')

@@ -10,6 +10,7 @@ from scipy import signal
 
 from emfc_ros.core.ident import (fit_transfer_function, FrequencyResponseData,
                                  IdentificationError, select_order)
+from emfc_ros.core.ident.tf_fit import estimated_weight_variance_factor
 from emfc_ros.core.model import linearise, MechanicalParameters
 
 F_HZ = np.logspace(0.0, 3.0, 400)
@@ -123,3 +124,42 @@ def test_tf_fit_errors():
         fit_transfer_function(frd.select(slice(0, 3)), 2, 4)
     with pytest.raises(IdentificationError, match='criterion'):
         select_order(frd, [(2, 4)], criterion='mdl')
+
+
+def test_estimated_weight_factor_is_the_sample_ml_inflation():
+    assert estimated_weight_variance_factor(12.0) == pytest.approx(1.25)
+    assert estimated_weight_variance_factor(float('inf')) == 1.0
+    assert estimated_weight_variance_factor(1e9) == pytest.approx(1.0, abs=1e-8)
+    assert estimated_weight_variance_factor(3.0) == pytest.approx(3.0)   # nu <= 4: at nu 5
+
+
+def _frd_with_estimated_std(seed, h, rel, dof):
+    """A noisy FRF whose std is estimated from ``dof`` complex degrees of freedom."""
+    rng = np.random.default_rng(seed)
+    sigma = rel * np.sqrt(2.0) * np.abs(h)
+    noisy = h + sigma / np.sqrt(2.0) * (rng.standard_normal(h.size)
+                                        + 1j * rng.standard_normal(h.size))
+    std = sigma * np.sqrt(rng.chisquare(2 * dof, h.size) / (2 * dof))
+    return FrequencyResponseData(F_HZ, noisy, np.ones(F_HZ.size), std, float(dof), 'LPM',
+                                 'N', 'm', details={'dof': dof})
+
+
+def test_modes_std_covers_the_scatter_when_the_weights_are_estimated():
+    num, den = two_mode_tf()
+    h = signal.freqs(num, den, worN=2 * np.pi * F_HZ)[1]
+    natural_Hz = np.array([10.0, 80.0])
+    z = []
+    for seed in range(150):
+        fit = fit_transfer_function(_frd_with_estimated_std(700 + seed, h, 0.02, dof=6), 2, 4)
+        z.append([(m.frequency_Hz - f) / m.frequency_std_Hz
+                  for m, f in zip(fit.modes, natural_Hz)])
+    spread = np.std(z, axis=0, ddof=1)
+    # With the (nu - 2) / (nu - 4) = 1.25 variance factor the z scatter is about 1
+    # (about 1.12 without it); 150 repetitions give about 6 % sampling error.
+    assert np.all((spread > 0.85) & (spread < 1.15)), spread
+    # The same data with the std declared known (no dof): 1.25 times smaller variances.
+    frd = _frd_with_estimated_std(700, h, 0.02, dof=6)
+    known = FrequencyResponseData(frd.frequency_Hz, frd.response, frd.coherence, frd.std,
+                                  frd.n_averages, 'test', 'N', 'm')
+    a, b = fit_transfer_function(frd, 2, 4), fit_transfer_function(known, 2, 4)
+    np.testing.assert_allclose(a.covariance, 1.25 * b.covariance, rtol=1e-9)

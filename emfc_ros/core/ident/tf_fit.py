@@ -207,7 +207,7 @@ def fit_transfer_function(frd: FrequencyResponseData, numerator_order: int,
         If the orders are invalid or there are too few frequencies.
     """
     nb, na = _check_orders(numerator_order, denominator_order)
-    f, h, sigma = _prepare(frd, use_std)
+    f, h, sigma, weighted = _prepare(frd, use_std)
     n_par = nb + 1 + na
     if 2 * f.size <= n_par:
         raise IdentificationError(f'{f.size} frequencies are too few for {n_par} parameters')
@@ -233,6 +233,13 @@ def fit_transfer_function(frd: FrequencyResponseData, numerator_order: int,
         num, den, cov, quads, message, num_cov, quad_cov, factors = _refine(
             s, hs, sig, num, den, nb, na, absolute_sigma)
         refined = True
+        dof = frd.details.get('dof') if isinstance(frd.details, dict) else None
+        if weighted and dof:
+            # The weights are estimates (the LPM's std from ``dof`` complex noise degrees
+            # of freedom): the parameters scatter more than with known weights.
+            inflate = estimated_weight_variance_factor(2.0 * float(dof))
+            cov, num_cov = cov * inflate, num_cov * inflate
+            quad_cov = [c * inflate for c in quad_cov]
     resid = (_polyval(num, s) / _polyval(den, s) - hs) / sig
     chi2 = float(np.sum(np.abs(resid) ** 2))
     n_res = 2 * f.size
@@ -328,10 +335,39 @@ def _prepare(frd: FrequencyResponseData, use_std: bool):
                                   'points above 0 Hz')
     f, h, std = f[keep], h[keep], std[keep]
     if use_std and np.all(np.isfinite(std) & (std > 0.0)):
-        sigma = std
-    else:
-        sigma = np.abs(h)
-    return f, h, sigma
+        return f, h, std, True
+    return f, h, np.abs(h), False
+
+
+def estimated_weight_variance_factor(nu: float) -> float:
+    """
+    Variance inflation of a least-squares fit weighted by estimated noise variances.
+
+    Each weight is ``1 / sigma_hat^2`` with ``sigma_hat^2 ~ sigma^2 chi2_nu / nu`` (``nu``
+    real degrees of freedom: twice the complex ones of an FRF's noise estimate). The
+    parameters' variance is ``E[w^2] / E[w]^2 = (nu - 2) / (nu - 4)`` times the one with
+    known weights (sample maximum likelihood, Pintelon and Schoukens, System Identification,
+    2nd ed., section 10.3), which the covariance from the Jacobian (rescaled by
+    ``chi^2 / dof``) does not contain. For the LPM's 6 complex degrees of freedom
+    (``nu = 12``) the factor is 1.25: measured, the transfer-function modes' ``z`` had a
+    standard deviation of 1.0 to 1.25 before it was applied.
+
+    Parameters
+    ----------
+    nu : float
+        Real degrees of freedom of each noise variance estimate.
+
+    Returns
+    -------
+    float
+        The factor (1 for ``nu`` infinite or not finite; for ``nu <= 4``, where the
+        variance does not exist, the factor at ``nu = 5``, 3).
+    """
+    nu = float(nu)
+    if not np.isfinite(nu):
+        return 1.0
+    nu = max(nu, 5.0)
+    return (nu - 2.0) / (nu - 4.0)
 
 
 def _polyval(coef_ascending: np.ndarray, s: np.ndarray) -> np.ndarray:
