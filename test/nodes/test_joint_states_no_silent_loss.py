@@ -7,7 +7,9 @@ more than a subscriber keeps up with (DDS then drops them silently: issue 13 mea
 of 40 000 recorded). The plant limits them to ``max_state_wall_rate_Hz`` of wall time and
 counts the rest as ``states_decimated``: every state it says it published is in the bag,
 read back by an independent reader (rosbags). Three separate processes, as ``ros2 run``
-starts them: plant simulator, recorder and consumer-paced signal generator.
+starts them: plant simulator, recorder (with ``use_sim_time`` and ``/clock``, as the README
+records the launch file's experiment: the bag lasts the simulated time) and consumer-paced
+signal generator.
 """
 
 import json
@@ -87,8 +89,9 @@ def test_every_published_joint_state_is_recorded_at_full_speed(tmp_path, process
     plant = processes.start(_argv('plant_simulator', {
         'time_mode': 'owner', 'load_mass_kg': 0.1274, 'state_rate_Hz': STATE_RATE_HZ,
         'publish_groups': False}))
+    # As the README records the launch file's experiment: simulated time, /clock recorded.
     recorder = processes.start(_argv('recorder', {
-        'output': str(bag), 'discovery_period_s': 0.1,
+        'use_sim_time': True, 'output': str(bag), 'discovery_period_s': 0.1,
         'topics': '[joint_states, measurements, /clock]'}))
     # The recorder subscribes to what it discovers: the experiment starts once it has.
     assert ros_harness.spin_until(
@@ -118,6 +121,7 @@ def test_every_published_joint_state_is_recorded_at_full_speed(tmp_path, process
     assert recorder.stop() == 0, recorder.output()
 
     with AnyReader([Path(bag)]) as reader:
+        duration_s = (reader.end_time - reader.start_time) * 1e-9
         counts = {c.topic: c.msgcount for c in reader.connections}
         states = [c for c in reader.connections if c.topic == '/emfc/joint_states']
         stamps = []
@@ -128,6 +132,9 @@ def test_every_published_joint_state_is_recorded_at_full_speed(tmp_path, process
     assert counts == {'/emfc/joint_states': published, '/emfc/measurements': blocks,
                       '/clock': blocks}, (counts, published, decimated, stamps[:5], stamps[-5:])
     assert len(stamps) == published
+    # Stamped with simulated time: the bag lasts the experiment's 8 s (within a block),
+    # though the run took a fraction of that.
+    assert abs(duration_s - total / RATE_HZ) <= 0.2, duration_s
     stamps = np.array(stamps)
     assert np.all(np.diff(stamps) > 0)
     period_ns = int(1e9 / STATE_RATE_HZ)
