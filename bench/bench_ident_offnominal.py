@@ -89,7 +89,12 @@ def target_of(name: str) -> Optional[float]:
 
 #: Where the grey-box result reports each mode (``to_dict()['greybox']['derived']``).
 DERIVED_MODES = {'low_mode_Hz': 'low_mode_frequency_Hz', 'high_mode_Hz': 'high_mode_frequency_Hz',
-                 'anti_resonance_Hz': 'coil_anti_resonance_frequency_Hz'}
+                 'anti_resonance_Hz': 'coil_anti_resonance_frequency_Hz',
+                 'low_damping_ratio': 'low_mode_damping_ratio',
+                 'high_damping_ratio': 'high_mode_damping_ratio',
+                 'anti_resonance_damping_ratio': 'coil_anti_resonance_damping_ratio'}
+#: Their names in the modal truth (``offnominal.ModalTruth``).
+MODE_DAMPINGS = ('low_damping_ratio', 'high_damping_ratio', 'anti_resonance_damping_ratio')
 
 
 def reported_modes(greybox: Optional[Dict[str, Any]]) -> Optional[Dict[str, Tuple[float, float]]]:
@@ -177,9 +182,10 @@ def assess(rec: Any, options: Dict[str, Any]) -> Dict[str, Any]:
     except Exception as exc:   # noqa: B902 (a serialisation bug must not stop the benchmark)
         reported = None
         out['to_dict_problem'] = repr(exc)
+    truths = dict(truth_modes, **{k: getattr(rec.modal, k) for k in MODE_DAMPINGS})
     out['reported_modes'] = None if reported is None else {
-        k: {'estimate': v, 'standard_uncertainty_Hz': s, 'truth': truth_modes[k],
-            'inside_95': bool(abs(v - truth_modes[k]) <= Z95 * s)}
+        k: {'estimate': v, 'standard_uncertainty': s, 'truth': truths[k],
+            'inside_95': bool(abs(v - truths[k]) <= Z95 * s)}
         for k, (v, s) in reported.items()}
     # modes of the transfer-function fit of the coil FRF, which do carry a std
     try:
@@ -201,6 +207,12 @@ def assess(rec: Any, options: Dict[str, Any]) -> Dict[str, Any]:
                 'inside_95': bool(abs(m.frequency_Hz - truth_modes[k])
                                   <= Z95 * m.frequency_std_Hz)}
             for k, m in pairs}
+        for (k, m), d in zip(pairs, MODE_DAMPINGS):
+            zeta = getattr(rec.modal, d)
+            out['coil_frf_modes'][d] = {
+                'estimate': m.damping_ratio, 'standard_uncertainty': m.damping_std,
+                'truth': zeta, 'error': m.damping_ratio / zeta - 1.0,
+                'inside_95': bool(abs(m.damping_ratio - zeta) <= Z95 * m.damping_std)}
     except (KeyError, AttributeError, IndexError):
         out['coil_frf_modes'] = None
     return out
@@ -352,7 +364,7 @@ def summarise(draws: List[Dict], reps: List[Dict], broken: List[Dict]) -> Dict[s
                        'spread_over_reported': float(np.std(ests, ddof=1) / np.median(ses))
                        if len(ests) > 1 and np.median(ses) > 0 else None}
     for source in ('reported_modes', 'coil_frf_modes'):
-        for n in ('low_mode_Hz', 'high_mode_Hz', 'anti_resonance_Hz'):
+        for n in ('low_mode_Hz', 'high_mode_Hz', 'anti_resonance_Hz') + MODE_DAMPINGS:
             got = [r['estimate'][source][n]['inside_95'] for r in reps
                    if r['estimate'].get(source) and n in r['estimate'][source]]
             coverage[f'{source}.{n}'] = {'n': len(got), 'fraction':
