@@ -28,6 +28,8 @@ Limits = Tuple[float, float]
 
 #: Node attribute holding the names of the float parameters (integers are taken as floats).
 FLOATS_ATTRIBUTE = '_emfc_float_parameters'
+#: Node attribute holding the refused start-up values not yet replaced (name: message).
+REFUSED_ATTRIBUTE = '_emfc_refused_start_up_values'
 _TYPE_NAMES = {bool: 'bool', int: 'integer', float: 'double', str: 'string'}
 
 
@@ -116,6 +118,7 @@ def declare_table(node: Node, table: Mapping[str, Sequence],
         raise ValueError(f'limits or read_only name undeclared parameters: {sorted(unknown)}')
     problems: List[str] = []
     floats = set()
+    refused = _refusals(node)
     for name, value in table.items():
         default, text, ro = _entry(value)
         if isinstance(default, float):
@@ -139,6 +142,7 @@ def declare_table(node: Node, table: Mapping[str, Sequence],
             node.get_logger().error(reason)
             node.declare_parameter(name, default, descriptor(
                 default, text, limits.get(name), ro or name in fixed), ignore_override=True)
+            refused[name] = reason      # after the declaration, which counts as a set
     # rclpy concatenates what each pre-set callback returns: one callback per node.
     known = getattr(node, FLOATS_ATTRIBUTE, None)
     if known is None:
@@ -148,6 +152,42 @@ def declare_table(node: Node, table: Mapping[str, Sequence],
             lambda params: [_as_float(p) if p.name in known else p for p in params])
     known.update(floats)
     return problems
+
+
+def pending_refusals(node: Node) -> str:
+    """
+    The refused start-up values of a node that no valid value has replaced yet, or ''.
+
+    A node does not start its work (arm, record) while this is not empty: the user set a
+    value and got the default instead. Setting the parameter (to a valid value: an invalid
+    one is refused) clears its entry; a read-only one needs a restart.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        A node whose parameters :func:`declare_table` declared.
+
+    Returns
+    -------
+    str
+        The messages, joined by ``'; '``.
+    """
+    return '; '.join(getattr(node, REFUSED_ATTRIBUTE, {}).values())
+
+
+def _refusals(node: Node) -> dict:
+    """The node's refused start-up values (created, with the callback that clears them)."""
+    refused = getattr(node, REFUSED_ATTRIBUTE, None)
+    if refused is None:
+        refused = {}
+        setattr(node, REFUSED_ATTRIBUTE, refused)
+
+        def replaced(params: List[Parameter]) -> None:
+            for p in params:
+                refused.pop(p.name, None)
+
+        node.add_post_set_parameters_callback(replaced)
+    return refused
 
 
 def _as_float(p: Parameter) -> Parameter:

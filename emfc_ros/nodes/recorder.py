@@ -53,7 +53,7 @@ from emfc_ros.core.bag.qos import DURABILITY, HISTORY, LIVELINESS, policy_name, 
 from emfc_ros.core.config import unflatten
 from emfc_ros.core.errors import ConfigError
 from emfc_ros.nodes.convert import LATCHED_QOS, node_diagnostics
-from emfc_ros.nodes.params import declare_table
+from emfc_ros.nodes.params import declare_table, pending_refusals
 from emfc_ros.nodes.spin import node_logger, node_main
 
 EXCLUDED_TOPICS = ('/rosout', '/parameter_events')
@@ -414,7 +414,8 @@ class RecorderNode(Node):
         return True, message
 
     def _srv_start(self, request: Trigger.Request, response: Trigger.Response):
-        response.success, response.message = self._start()
+        refused = pending_refusals(self)    # not with a default nobody asked for
+        response.success, response.message = (False, refused) if refused else self._start()
         return response
 
     def _srv_stop(self, request: Trigger.Request, response: Trigger.Response):

@@ -42,7 +42,7 @@ from emfc_ros.core.signals import Experiment, experiment_from_config, load_exper
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS,
     node_diagnostics)
-from emfc_ros.nodes.params import declare_table
+from emfc_ros.nodes.params import declare_table, pending_refusals
 from emfc_ros.nodes.spin import node_main
 
 DEFAULT_EXPERIMENT = 'identification_trajectory.yaml'
@@ -103,7 +103,7 @@ class SignalGeneratorNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('signal_generator', allow_undeclared_parameters=True,
                          automatically_declare_parameters_from_overrides=True, **kwargs)
-        refused = declare_table(self, PARAMETERS, LIMITS)
+        declare_table(self, PARAMETERS, LIMITS)
         self._state = 'idle'
         self._error = ''
         self._experiment: Optional[Experiment] = None
@@ -140,11 +140,7 @@ class SignalGeneratorNode(Node):
         self._min_subscribers = 0
         self.create_timer(1.0, self._publish_diagnostics, clock=self._steady)
         self._publish_done(False)
-        if refused:     # not armed with values nobody asked for
-            self._state, self._error = 'error', '; '.join(refused)
-            ok, reason = False, self._error
-        else:
-            ok, reason = self._arm()
+        ok, reason = self._arm()    # refused while a start-up value was refused
         if not ok:
             self.get_logger().error(f'experiment refused: {reason}; fix the parameters and '
                                     'call ~/arm or ~/start')
@@ -234,6 +230,10 @@ class SignalGeneratorNode(Node):
     # -- state machine ---------------------------------------------------------------------
 
     def _arm(self, overrides: Optional[List[Parameter]] = None) -> tuple:
+        refused = pending_refusals(self)
+        if refused:
+            self._state, self._error = 'error', refused
+            return False, refused
         try:
             experiment = self._build_experiment(overrides)
         except (ValueError, OSError) as exc:

@@ -246,6 +246,31 @@ def test_refused_startup_value_keeps_node_running(name, value, needle, executor,
     assert proc.stop() == 0, proc.output()
 
 
+def test_refused_startup_value_blocks_the_start_until_replaced(executor, ros_context):
+    from emfc_ros.nodes.signal_generator import SignalGeneratorNode
+    node = SignalGeneratorNode(context=ros_context, namespace='/conv', parameter_overrides=[
+        Parameter('block_size', value=0), Parameter('autostart', value=True)])
+    probe = rclpy.create_node('probe', namespace='/conv', context=ros_context)
+    for n in (node, probe):
+        executor.add_node(n)
+    assert node.get_parameter('block_size').value == 1000
+    arm = probe.create_client(Trigger, '/conv/signal_generator/arm')
+    assert ros_harness.spin_until(executor, arm.service_is_ready, TIMEOUT_S)
+    response = call(executor, arm.call_async(Trigger.Request()))
+    assert not response.success and 'block_size' in response.message
+    assert 'start-up value 0 refused' in response.message
+    client = AsyncParameterClient(probe, '/conv/signal_generator')
+    assert ros_harness.spin_until(executor, client.services_are_ready, TIMEOUT_S)
+    result = call(executor, client.set_parameters([Parameter('block_size', value=-3)]))
+    assert not result.results[0].successful
+    response = call(executor, arm.call_async(Trigger.Request()))
+    assert not response.success and 'block_size' in response.message
+    result = call(executor, client.set_parameters([Parameter('block_size', value=500)]))
+    assert result.results[0].successful
+    response = call(executor, arm.call_async(Trigger.Request()))
+    assert response.success, response.message
+
+
 # -- --help ---------------------------------------------------------------------------------
 
 def console_script(name):
