@@ -15,6 +15,8 @@ from emfc_ros.nodes.params import help_text, startup_line
 
 #: Arguments that ask for the node's help (before any ``--ros-args``).
 HELP_FLAGS = ('-h', '--help')
+#: Node attribute set once :func:`run_node` has left the spin (see :func:`node_logger`).
+SHUTTING_DOWN_ATTRIBUTE = '_emfc_shutting_down'
 
 
 def run_node(factory: Callable[[], Node], args: Optional[List[str]] = None,
@@ -67,6 +69,7 @@ def run_node(factory: Callable[[], Node], args: Optional[List[str]] = None,
         # from now on SIGINT is ignored; the cleanup is short and bounded.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         if node is not None:
+            setattr(node, SHUTTING_DOWN_ATTRIBUTE, True)
             node_logger(node).info(f'shutting down: {why}')
             node.destroy_node()
         rclpy.try_shutdown()
@@ -114,11 +117,13 @@ def node_main(factory: Callable[[], Node], name: str,
 
 def node_logger(node: Node):
     """
-    The node's logger, or after Ctrl-C a console-only logger ``<node logger>.shutdown``.
+    The node's logger, or once it shuts down a console-only logger ``<node logger>.shutdown``.
 
-    Once the context is shut down, a line through the node's own logger cannot reach
+    Once the context is shut down (Ctrl-C), a line through the node's own logger cannot reach
     ``/rosout`` and rcl prints "Failed to publish log message to rosout" for it; the child
-    name is not registered with ``/rosout``, so its lines reach the console cleanly.
+    name is not registered with ``/rosout``, so its lines reach the console cleanly. rclpy
+    shuts the context down from its signal handler, possibly just after the spin has
+    ended: every line from the end of the spin on goes to the console.
 
     Parameters
     ----------
@@ -130,7 +135,7 @@ def node_logger(node: Node):
     rclpy.impl.rcutils_logger.RcutilsLogger
         The logger to use.
     """
-    if node.context.ok():
+    if node.context.ok() and not getattr(node, SHUTTING_DOWN_ATTRIBUTE, False):
         return node.get_logger()
     return get_logger(f'{node.get_logger().name}.shutdown')
 
