@@ -241,9 +241,9 @@ class PlantSimulatorNode(Node):
             self._fail(f'time_mode must be one of {list(TIME_MODES)}, got {self._mode!r}')
         elif self._mode == 'lockstep':
             self._configure_lockstep()
-        if refused:     # does not simulate with values nobody asked for
+        if refused:     # does not simulate with values nobody asked for (logged already)
             self._sim = None
-            self._fail('; '.join(refused) + '; restart the node with valid values')
+            self._error = '; '.join(refused) + '; restart the node with valid values'
 
         self._pub = {'measurements': self.create_publisher(Float64MultiArray, 'measurements',
                                                            BLOCK_QOS)}

@@ -130,8 +130,8 @@ class PositionControllerNode(Node):
                 self._install(self._make_design())
             except (ValueError, OSError) as exc:
                 self._fail(f'controller design refused: {exc}')
-        if refused:     # no commands from values nobody asked for
-            self._fail('; '.join(refused) + '; set valid values or restart the node')
+        if refused:     # no commands from values nobody asked for (logged already)
+            self._error = '; '.join(refused) + '; set valid values or restart the node'
         if self._output == 'commands':
             self._pub = self.create_publisher(Float64MultiArray, 'commands', CONTROL_QOS)
         else:
