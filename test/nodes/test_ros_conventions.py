@@ -332,3 +332,12 @@ def test_help_does_not_initialise_rclpy():
                             env=ros_harness.child_environment())
     assert result.returncode == 0, result.stderr
     assert f'HELP WITHOUT INIT {len(NODES)}' in result.stdout
+
+
+def test_help_flags_before_ros_args_only():
+    from emfc_ros.nodes.spin import wants_help
+    assert wants_help(['--help']) and wants_help(['-h'])
+    assert wants_help(['-h', '--ros-args', '-p', 'seed:=1'])
+    assert not wants_help([])
+    assert not wants_help(['--ros-args', '--help'])         # ROS's own
+    assert not wants_help(['--ros-args', '-p', 'x:=-h'])
