@@ -36,7 +36,7 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -57,6 +57,7 @@ from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
     node_diagnostics, subscribe_device_inputs)
+from emfc_ros.nodes.params import declare_table
 from emfc_ros.nodes.spin import node_main
 
 BACKEND_NAMES = ('sim', 'udp', 'replay')
@@ -173,6 +174,17 @@ def declared_pan_load(load_mass_kg: float, coupled: str) -> Dict[str, Any]:
     return out
 
 
+#: Inclusive limits of the numeric parameters (descriptors; ``ros2 param describe``); an
+#: open end at 0 is checked by the node.
+LIMITS = {'sample_rate_Hz': (0.0, 1e7), 'block_size': (1, 65535),
+          'device_watchdog_timeout_s': (0.0, 3600.0), 'excitation_lead_s': (0.0, 10.0),
+          'watchdog_timeout_s': (0.0, 3600.0), 'command_timeout_s': (0.0, 60.0),
+          'diagnostics_period_s': (0.05, 60.0), 'publisher_depth': (1, 100000),
+          'udp.device_port': (1, 65535), 'udp.bind_port': (0, 65535),
+          'udp.heartbeat_period_s': (0.0, 60.0), 'udp.request_timeout_s': (0.0, 60.0),
+          'udp.device_timeout_s': (0.0, 60.0), 'udp.reorder_timeout_s': (0.0, 60.0),
+          'sim.seed': (0, 2 ** 63 - 1), 'sim.load_mass_kg': (0.0, 2.0)}
+
 #: Function-generator fields (``funcgen.<output>.<field>``) and their defaults.
 FUNCGEN_FIELDS = {
     'waveform': ('off', "'off' (follow the excitation stream), 'sine', 'chirp', 'prbs', "
@@ -191,6 +203,15 @@ FUNCGEN_FIELDS = {
 #: Autostart retries a device that does not answer this often [s].
 RETRY_PERIOD_S = 5.0
 RUNTIME = ('watchdog_timeout_s', 'command_timeout_s', 'state_rate_Hz', 'excitation_lead_s')
+#: Every other parameter of the table is fixed at start-up.
+READ_ONLY = tuple(name for name in PARAMETERS if name not in RUNTIME)
+#: Shown in the start-up log line (with every parameter set to a non-default value).
+STARTUP_KEYS = ('backend', 'excitation_mode', 'sample_rate_Hz', 'block_size', 'autostart')
+HELP_EXTRA = ('funcgen.<output>.<field> (one group per output, <output> without its _V '
+              'suffix; settable at run time): ' + '; '.join(
+                  f'{field} (default {default!r}): {text}'
+                  for field, (default, text) in FUNCGEN_FIELDS.items())
+              + '; prbs_order from 2 to 31.')
 
 
 def funcgen_key(output: str) -> str:
@@ -230,15 +251,12 @@ class DaqBridgeNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('daq_bridge', allow_undeclared_parameters=True,
                          automatically_declare_parameters_from_overrides=True, **kwargs)
-        for name, (default, text) in PARAMETERS.items():
-            if not self.has_parameter(name):
-                self.declare_parameter(name, default, ParameterDescriptor(description=text))
-        for out in self._param('outputs') or []:
-            for field, (default, text) in FUNCGEN_FIELDS.items():
-                name = f'funcgen.{funcgen_key(str(out))}.{field}'
-                if not self.has_parameter(name):
-                    self.declare_parameter(name, default,
-                                           ParameterDescriptor(description=text))
+        refused = declare_table(self, PARAMETERS, LIMITS, READ_ONLY)
+        funcgen = {f'funcgen.{funcgen_key(str(out))}.{field}': entry
+                   for out in self._param('outputs') or []
+                   for field, entry in FUNCGEN_FIELDS.items()}
+        refused += declare_table(self, funcgen, {
+            name: (2, 31) for name in funcgen if name.endswith('.prbs_order')})
         self._runtime: Dict[str, float] = {}
         for name in RUNTIME:
             try:
@@ -271,6 +289,8 @@ class DaqBridgeNode(Node):
         self._pub: Dict[str, Any] = {}
         self._pub_desc: Dict[str, Any] = {}
         try:
+            if refused:     # no device started with values nobody asked for
+                raise ValueError('; '.join(refused))
             self._build()
         except (ConfigError, DeviceConfigError, DeviceError, ValueError, OSError,
                 TypeError) as exc:

@@ -25,7 +25,7 @@ from typing import List, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray, String
@@ -36,6 +36,7 @@ from emfc_ros.core.blocks import Continuity, SequenceTracker
 from emfc_ros.core.errors import BlockError
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, LATCHED_QOS, msg_to_block, msg_to_description, node_diagnostics)
+from emfc_ros.nodes.params import declare_table
 from emfc_ros.nodes.spin import node_main
 
 PARAMETERS = {
@@ -45,6 +46,10 @@ PARAMETERS = {
     'options_file': ('', 'identification options YAML (a mapping) [path]; empty: defaults'),
     'max_accumulated_samples': (50_000_000, 'bound on live accumulation [samples]'),
 }
+#: Inclusive limits of the numeric parameters (descriptors; ``ros2 param describe``).
+LIMITS = {'max_accumulated_samples': (1, 2 ** 62)}
+#: Shown in the start-up log line (with every parameter set to a non-default value).
+STARTUP_KEYS = ('output_dir', 'bag', 'options_file')
 
 
 class IdentifierNode(Node):
@@ -59,8 +64,7 @@ class IdentifierNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('identifier', **kwargs)
-        for name, (default, text) in PARAMETERS.items():
-            self.declare_parameter(name, default, ParameterDescriptor(description=text))
+        refused = declare_table(self, PARAMETERS, LIMITS)
         self._lock = threading.Lock()
         self._busy = False
         self._accumulating = False
@@ -71,7 +75,7 @@ class IdentifierNode(Node):
         self._rate = 0.0
         self._sections: list = []
         self._malformed = 0
-        self._last_error = ''
+        self._last_error = '; '.join(refused)   # reported on /diagnostics
         self._last_result = ''
         self._runs = 0
         self._pub_progress = self.create_publisher(String, '~/progress', 10)

@@ -20,6 +20,9 @@ Topics (relative to the node namespace):
 - ``/clock`` (``rosgraph_msgs/Clock``, out) when ``time_mode`` is ``owner`` or ``lockstep``.
 - ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``, out, 1 Hz).
 
+Service (``std_srvs/Trigger``, private): ``~/reset`` (back to the operating point; simulated
+time and sample indices go on).
+
 Time modes: ``owner`` (the simulator owns time: each excitation block is simulated as soon
 as it arrives, measurement blocks carry the excitation's sample indices, ``/clock`` advances
 by the simulated time: lockstep with the input, faster than real time), ``wall`` (paced
@@ -46,15 +49,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 from pathlib import Path
-import sys
 import time
 from typing import List, Optional
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock as RosClock, ClockType
+from rclpy.logging import get_logger
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
@@ -78,6 +81,7 @@ from emfc_ros.core.sim.state_rate import StateRateLimiter
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
     node_diagnostics, subscribe_device_inputs, subscribe_excitation)
+from emfc_ros.nodes.params import declare_table
 from emfc_ros.nodes.spin import node_main
 
 DEFAULT_BALANCE = 'balance_default.yaml'
@@ -149,6 +153,19 @@ PARAMETERS = {
     'control.position_setpoint_m': (0.0, 'lever-end position the loop holds [m]'),
 }
 CONTROL_PREFIX = 'control.'
+#: Inclusive limits of the numeric parameters (descriptors; ``ros2 param describe``).
+LIMITS = {'block_size': (1, 1_000_000), 'seed': (0, 2 ** 63 - 1), 'substeps': (0, 64),
+          'load_mass_kg': (0.0, 2.0), 'command_delay_periods': (0, 1),
+          'min_subscribers': (0, 100)}
+#: Parameters fixed at start-up (``state_rate_Hz`` too in lockstep mode: refused then).
+READ_ONLY = ('sample_rate_Hz', 'block_size', 'time_mode', 'seed', 'noise', 'quantisation',
+             'substeps', 'hold', 'publish_groups', 'command_delay_periods', 'lockstep_match',
+             'min_subscribers') + tuple(n for n in PARAMETERS if n.startswith(CONTROL_PREFIX))
+#: Shown in the start-up log line (with every parameter set to a non-default value).
+STARTUP_KEYS = ('time_mode', 'sample_rate_Hz', 'load_mass_kg', 'balance_file',
+                'control.enabled')
+HELP_EXTRA = ('balance.*: balance parameters (the keys of config/balance_default.yaml, '
+              'flattened), used when balance_file is empty; settable at run time.')
 
 
 @dataclass
@@ -187,9 +204,7 @@ class PlantSimulatorNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('plant_simulator', allow_undeclared_parameters=True,
                          automatically_declare_parameters_from_overrides=True, **kwargs)
-        for name, (default, text) in PARAMETERS.items():
-            if not self.has_parameter(name):
-                self.declare_parameter(name, default, ParameterDescriptor(description=text))
+        refused = declare_table(self, PARAMETERS, LIMITS, READ_ONLY)
         self._error = ''
         self._rate = float(self._param('sample_rate_Hz'))
         self._mode = str(self._param('time_mode'))
@@ -234,6 +249,9 @@ class PlantSimulatorNode(Node):
             self._fail(f'time_mode must be one of {list(TIME_MODES)}, got {self._mode!r}')
         elif self._mode == 'lockstep':
             self._configure_lockstep()
+        if refused:     # does not simulate with values nobody asked for (logged already)
+            self._sim = None
+            self._error = '; '.join(refused) + '; restart the node with valid values'
 
         self._pub = {'measurements': self.create_publisher(Float64MultiArray, 'measurements',
                                                            BLOCK_QOS)}
@@ -265,7 +283,7 @@ class PlantSimulatorNode(Node):
                                    'measurements before subscribing to the excitation')
             self._excitation_timer = self.create_timer(
                 0.05, self._open_excitation, clock=RosClock(clock_type=ClockType.STEADY_TIME))
-        self.create_service(Trigger, 'reset', self._srv_reset)
+        self.create_service(Trigger, '~/reset', self._srv_reset)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._publish_descriptions()
         self.create_timer(1.0, self._publish_diagnostics)
@@ -789,11 +807,12 @@ def compile_kernel() -> None:
 
     The first start after an install compiles for about 12-15 s (``docs/simulator.md``); the
     node then appears ready to serve, and Ctrl-C during the compilation ends the process.
-    One line on stderr says so (there is no ROS logger yet).
+    One line says so, through the ROS logging system to the console: the node does not
+    exist yet, so there is no node logger and the line cannot reach ``/rosout``.
     """
-    print('plant_simulator: preparing the simulator kernel (numba: loaded from its cache, or '
-          'compiled in about 15 s on the first start after an install)', file=sys.stderr,
-          flush=True)
+    get_logger('plant_simulator').info(
+        'preparing the simulator kernel (numba: loaded from its cache, or compiled in about '
+        '15 s on the first start after an install)')
     Simulator(BalanceParameters(), float(PARAMETERS['sample_rate_Hz'][0])).step_block(
         np.zeros((2, 1)))
 

@@ -34,7 +34,7 @@ import time
 from typing import List, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -50,6 +50,7 @@ from emfc_ros.core.model.load import loaded
 from emfc_ros.core.model.parameters import BalanceParameters
 from emfc_ros.core.paths import config_file
 from emfc_ros.nodes.convert import CONTROL_QOS, node_diagnostics
+from emfc_ros.nodes.params import declare_table
 from emfc_ros.nodes.spin import node_main
 
 DEFAULT_BALANCE = 'balance_default.yaml'
@@ -83,6 +84,12 @@ PARAMETERS = {
                                'false: it is added to the excitation (starts from 0 N)'),
     'joint_name': ('lever', 'name of the controlled joint'),
 }
+#: Inclusive limits of the numeric parameters (descriptors; ``ros2 param describe``).
+LIMITS = {'load_mass_kg': (0.0, 2.0), 'phase_margin_deg': (0.0, 90.0),
+          'position_setpoint_m': (-100e-6, 100e-6)}
+READ_ONLY = ('command_output', 'joint_name', 'command_is_total')
+#: Shown in the start-up log line (with every parameter set to a non-default value).
+STARTUP_KEYS = ('rate_Hz', 'command_output', 'position_setpoint_m')
 
 
 class PositionControllerNode(Node):
@@ -97,8 +104,7 @@ class PositionControllerNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('position_controller', **kwargs)
-        for name, (default, text) in PARAMETERS.items():
-            self.declare_parameter(name, default, ParameterDescriptor(description=text))
+        refused = declare_table(self, PARAMETERS, LIMITS, READ_ONLY)
         self._output = str(self._param('command_output'))
         self._joint = str(self._param('joint_name'))
         self._error = ''
@@ -124,6 +130,8 @@ class PositionControllerNode(Node):
                 self._install(self._make_design())
             except (ValueError, OSError) as exc:
                 self._fail(f'controller design refused: {exc}')
+        if refused:     # no commands from values nobody asked for (logged already)
+            self._error = '; '.join(refused) + '; set valid values or restart the node'
         if self._output == 'commands':
             self._pub = self.create_publisher(Float64MultiArray, 'commands', CONTROL_QOS)
         else:

@@ -36,7 +36,6 @@ import importlib
 import json
 import os
 from pathlib import Path
-import sys
 import time
 from typing import Dict, List, Optional, Tuple
 
@@ -60,7 +59,8 @@ from emfc_ros.core.bag.qos import DURABILITY, HISTORY, LIVELINESS, policy_name, 
 from emfc_ros.core.config import unflatten
 from emfc_ros.core.errors import ConfigError
 from emfc_ros.nodes.convert import LATCHED_QOS, node_diagnostics
-from emfc_ros.nodes.spin import node_main
+from emfc_ros.nodes.params import declare_table, pending_refusals
+from emfc_ros.nodes.spin import node_logger, node_main
 
 EXCLUDED_TOPICS = ('/rosout', '/parameter_events')
 DESCRIPTION_SUFFIX = 'excitation/description'
@@ -101,6 +101,9 @@ LIMITS = {'max_bag_size_B': (0, 2 ** 62), 'max_bag_duration_s': (0.0, 1e9),
           'subscription_depth': (1, 100000), 'max_queue_messages': (10, 10_000_000),
           'max_queue_B': (1_000_000, 2 ** 40),
           'parameter_timeout_s': (0.1, 60.0)}
+#: Shown in the start-up log line (with every parameter set to a non-default value).
+STARTUP_KEYS = ('output', 'autostart')
+HELP_EXTRA = f'topics: string array, unset; {TOPICS_TEXT}.'
 FIXED_WHILE_RECORDING = ('output', 'topics', 'max_bag_size_B', 'max_bag_duration_s',
                          'flush_period_s', 'subscription_depth', 'max_queue_messages',
                          'max_queue_B')
@@ -272,10 +275,8 @@ class RecorderNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('recorder', **kwargs)
-        for name, (default, text) in PARAMETERS.items():
-            # Floats accept integers too (`-p flush_period_s:=2`); the callback checks.
-            self.declare_parameter(name, default, ParameterDescriptor(
-                description=text, dynamic_typing=isinstance(default, float)))
+        # Floats accept integers too (`-p flush_period_s:=2`), taken as floats.
+        refused = declare_table(self, PARAMETERS, LIMITS)
         self.declare_parameter('topics', Parameter.Type.STRING_ARRAY,
                                ParameterDescriptor(description=TOPICS_TEXT))
         self._state = 'idle'
@@ -299,6 +300,8 @@ class RecorderNode(Node):
         self._steady = RosClock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(1.0, self._publish_diagnostics, clock=self._steady)
         initial = self._on_set_parameters([self.get_parameter(n) for n in PARAMETERS])
+        if refused:     # not recording with values nobody asked for
+            initial = SetParametersResult(successful=False, reason='; '.join(refused))
         if not initial.successful:
             self._state, self._error = 'error', initial.reason
             self.get_logger().error(f'invalid parameter: {initial.reason}; set a valid value '
@@ -419,14 +422,12 @@ class RecorderNode(Node):
         self._publish_status()
         message = (f'closed {self._output}: {stats.total_messages} messages in '
                    f'{len(stats.files)} files, {stats.dropped} dropped')
-        if self.context.ok():
-            self.get_logger().info(message)
-        else:  # after Ctrl-C the logger can no longer reach /rosout
-            print(f'[recorder] {message}', file=sys.stderr, flush=True)
+        node_logger(self).info(message)     # after Ctrl-C: the console only
         return True, message
 
     def _srv_start(self, request: Trigger.Request, response: Trigger.Response):
-        response.success, response.message = self._start()
+        refused = pending_refusals(self)    # not with a default nobody asked for
+        response.success, response.message = (False, refused) if refused else self._start()
         return response
 
     def _srv_stop(self, request: Trigger.Request, response: Trigger.Response):

@@ -27,7 +27,7 @@ import time
 from typing import List, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -42,6 +42,7 @@ from emfc_ros.core.signals import Experiment, experiment_from_config, load_exper
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS,
     node_diagnostics)
+from emfc_ros.nodes.params import declare_table, pending_refusals
 from emfc_ros.nodes.spin import node_main
 
 DEFAULT_EXPERIMENT = 'identification_trajectory.yaml'
@@ -79,6 +80,14 @@ PARAMETERS = {
 
 #: Float parameters with their range [s].
 TIME_LIMITS = {'ack_timeout_s': (0.01, 3600.0), 'consumer_timeout_s': (0.01, 86400.0)}
+#: Inclusive limits of the numeric parameters (descriptors; ``ros2 param describe``).
+LIMITS = {'block_size': (1, 1_000_000), 'lead_blocks': (0, 1000), 'window_blocks': (1, 1000),
+          'tick_period_s': (0.0, 1.0), 'max_blocks_per_tick': (1, 10000),
+          'min_subscribers': (0, 100), **TIME_LIMITS}
+#: Shown in the start-up log line (with every parameter set to a non-default value).
+STARTUP_KEYS = ('pacing', 'experiment_file', 'block_size', 'autostart')
+HELP_EXTRA = ('experiment.*: the experiment as parameters (the keys of an experiment YAML, '
+              'flattened), used when experiment_file is empty.')
 
 
 class SignalGeneratorNode(Node):
@@ -94,9 +103,7 @@ class SignalGeneratorNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('signal_generator', allow_undeclared_parameters=True,
                          automatically_declare_parameters_from_overrides=True, **kwargs)
-        for name, (default, text) in PARAMETERS.items():
-            if not self.has_parameter(name):
-                self.declare_parameter(name, default, ParameterDescriptor(description=text))
+        declare_table(self, PARAMETERS, LIMITS)
         self._state = 'idle'
         self._error = ''
         self._experiment: Optional[Experiment] = None
@@ -133,7 +140,7 @@ class SignalGeneratorNode(Node):
         self._min_subscribers = 0
         self.create_timer(1.0, self._publish_diagnostics, clock=self._steady)
         self._publish_done(False)
-        ok, reason = self._arm()
+        ok, reason = self._arm()    # refused while a start-up value was refused
         if not ok:
             self.get_logger().error(f'experiment refused: {reason}; fix the parameters and '
                                     'call ~/arm or ~/start')
@@ -223,6 +230,10 @@ class SignalGeneratorNode(Node):
     # -- state machine ---------------------------------------------------------------------
 
     def _arm(self, overrides: Optional[List[Parameter]] = None) -> tuple:
+        refused = pending_refusals(self)
+        if refused:
+            self._state, self._error = 'error', refused
+            return False, refused
         try:
             experiment = self._build_experiment(overrides)
         except (ValueError, OSError) as exc:

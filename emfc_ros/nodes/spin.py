@@ -3,11 +3,20 @@
 from __future__ import annotations
 
 import signal
+import sys
 from typing import Callable, List, Optional
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
+from rclpy.logging import get_logger
 from rclpy.node import Node
+
+from emfc_ros.nodes.params import help_text, startup_line
+
+#: Arguments that ask for the node's help (before any ``--ros-args``).
+HELP_FLAGS = ('-h', '--help')
+#: Node attribute set once :func:`run_node` has left the spin (see :func:`node_logger`).
+SHUTTING_DOWN_ATTRIBUTE = '_emfc_shutting_down'
 
 
 def run_node(factory: Callable[[], Node], args: Optional[List[str]] = None,
@@ -40,22 +49,28 @@ def run_node(factory: Callable[[], Node], args: Optional[List[str]] = None,
         return 0
     rclpy.init(args=args)
     node = None
+    why = 'error'
     try:
         node = factory()
         if rclpy.ok():
+            node.get_logger().info(startup_line(node, sys.modules.get(factory.__module__)))
             rclpy.spin(node)
+        why = 'shutdown requested'
     except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        why = 'interrupted (Ctrl-C or shutdown request)'
     except Exception:
         # Ctrl-C during construction: rclpy shut the context down under the constructor,
         # whose next call into rcl fails. Anything else is a genuine error.
         if rclpy.ok():
             raise
+        why = 'interrupted during start-up'
     finally:
         # A second Ctrl-C must not cut the cleanup short (the recorder closes its bag here):
         # from now on SIGINT is ignored; the cleanup is short and bounded.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         if node is not None:
+            setattr(node, SHUTTING_DOWN_ATTRIBUTE, True)
+            node_logger(node).info(f'shutting down: {why}')
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
@@ -84,12 +99,63 @@ def node_main(factory: Callable[[], Node], name: str,
         ``main(args)``: run the node until shutdown, return the process exit code.
     """
     def main(args: Optional[List[str]] = None) -> int:
+        argv = sys.argv[1:] if args is None else list(args)
+        if wants_help(argv):
+            module = sys.modules.get(factory.__module__)
+            sys.stdout.write(help_text(
+                name, getattr(module, '__doc__', '') or '', getattr(module, 'PARAMETERS', {}),
+                getattr(module, 'LIMITS', {}), getattr(module, 'READ_ONLY', ()),
+                getattr(module, 'HELP_EXTRA', '')))
+            return 0
         return run_node(factory, args, warm_up=warm_up)
 
     main.__doc__ = (f'Run the {name} node until shutdown.{" " + note if note else ""}\n\n'
-                    '``args``: command-line arguments (``--ros-args ...``); returns the '
-                    'process exit code.')
+                    '``args``: command-line arguments (``--ros-args ...``; ``--help``: print '
+                    'the parameters and topics, exit 0); returns the process exit code.')
     return main
+
+
+def node_logger(node: Node):
+    """
+    The node's logger, or once it shuts down a console-only logger ``<node logger>.shutdown``.
+
+    Once the context is shut down (Ctrl-C), a line through the node's own logger cannot reach
+    ``/rosout`` and rcl prints "Failed to publish log message to rosout" for it; the child
+    name is not registered with ``/rosout``, so its lines reach the console cleanly. rclpy
+    shuts the context down from its signal handler, possibly just after the spin has
+    ended: every line from the end of the spin on goes to the console.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node.
+
+    Returns
+    -------
+    rclpy.impl.rcutils_logger.RcutilsLogger
+        The logger to use.
+    """
+    if node.context.ok() and not getattr(node, SHUTTING_DOWN_ATTRIBUTE, False):
+        return node.get_logger()
+    return get_logger(f'{node.get_logger().name}.shutdown')
+
+
+def wants_help(argv: List[str]) -> bool:
+    """
+    Whether the command line asks for the node's help (``-h`` or ``--help`` before ROS's).
+
+    Parameters
+    ----------
+    argv : list of str
+        Command-line arguments without the program name.
+
+    Returns
+    -------
+    bool
+        True for ``-h``/``--help`` before any ``--ros-args`` (``--ros-args --help`` is ROS's).
+    """
+    ros = argv.index('--ros-args') if '--ros-args' in argv else len(argv)
+    return any(a in HELP_FLAGS for a in argv[:ros])
 
 
 def _warm_up(warm_up: Callable[[], object]) -> bool:

@@ -37,7 +37,6 @@ from typing import Optional
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from std_msgs.msg import Float64, Float64MultiArray, String
@@ -51,6 +50,7 @@ from emfc_ros.core.weighing import (compensation_force_N, DynamicWeigher, Readin
                                     ReadingFilter, WeighingCalibration, WeighingError)
 from emfc_ros.nodes.convert import (BLOCK_QOS, diagnostic_status, LATCHED_QOS, msg_to_block,
                                     msg_to_description, node_diagnostics)
+from emfc_ros.nodes.params import declare_table
 from emfc_ros.nodes.spin import node_main
 
 DEFAULT_BALANCE = 'balance_default.yaml'
@@ -91,6 +91,11 @@ PARAMETERS = {
                                '> 0; may be changed at any time', False),
     'reference_mass_u_kg': (0.0, 'standard uncertainty of the reference mass [kg], >= 0', False),
 }
+#: Inclusive limits of the numeric parameters (descriptors; ``ros2 param describe``);
+#: reference_mass_kg 0 means not set (~/adjust refuses it).
+LIMITS = {'reference_mass_kg': (0.0, 100.0), 'reference_mass_u_kg': (0.0, 100.0)}
+#: Shown in the start-up log line (with every parameter set to a non-default value).
+STARTUP_KEYS = ('measurements_topic', 'balance_file', 'dynamic')
 
 
 def _value(x) -> str:
@@ -118,9 +123,7 @@ class WeighingNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('weighing', **kwargs)
-        for name, (default, text, read_only) in PARAMETERS.items():
-            descriptor = ParameterDescriptor(description=text, read_only=read_only)
-            self.declare_parameter(name, default, descriptor)
+        refused = declare_table(self, PARAMETERS, LIMITS)
         self._config_error = ''   # configuration (balance, parameters): nothing works
         self._stream_error = ''   # description without the channels: blocks are ignored
         self._last_error = ''     # the latest problem of any kind, for the diagnostics
@@ -146,6 +149,9 @@ class WeighingNode(Node):
             self._config_error = f'configuration refused: {exc}'
             self._last_error = self._config_error
             self.get_logger().error(self._config_error)
+        if refused:     # no readings from values nobody asked for
+            self._config_error = 'configuration refused: ' + '; '.join(refused)
+            self._last_error = self._config_error
 
         topic = str(self._param('measurements_topic'))
         self._pub_reading = self.create_publisher(DiagnosticArray, '~/reading', READING_QOS)

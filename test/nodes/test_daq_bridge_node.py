@@ -365,7 +365,7 @@ def test_sim_backend_streams_contiguous_blocks_and_refuses_bad_input(executor, r
     results = bridge.set_parameters([Parameter('watchdog_timeout_s', value=-1.0)])
     assert not results[0].successful and 'watchdog_timeout_s' in results[0].reason
     results = bridge.set_parameters([Parameter('sample_rate_Hz', value=20000.0)])
-    assert not results[0].successful and 'fixed at start-up' in results[0].reason
+    assert not results[0].successful and 'read-only' in results[0].reason
     results = bridge.set_parameters([Parameter('funcgen.coil.waveform', value='square')])
     assert not results[0].successful and 'waveform' in results[0].reason
     assert bridge.set_parameters([Parameter('watchdog_timeout_s', value=2.0)])[0].successful

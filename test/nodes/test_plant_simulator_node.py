@@ -225,8 +225,8 @@ def test_separate_process_refuses_bad_parameters(tmp_path, processes, executor, 
         return future.result().results[0]
 
     for name, value, needle in [('load_mass_kg', -0.1, 'load_mass_kg'),
-                                ('load_mass_kg', 5.0, '0 to 2 kg'),
-                                ('seed', 3, 'fixed at start-up'),
+                                ('load_mass_kg', 5.0, 'out of range'),
+                                ('seed', 3, 'read-only'),
                                 ('balance_file', str(bad), 'mp_kg'),
                                 ('balance_file', str(tmp_path / 'none.yaml'), 'none.yaml')]:
         result = set_one(name, value)

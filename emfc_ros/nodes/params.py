@@ -1,0 +1,351 @@
+"""
+Parameter declaration shared by every node: descriptors with limits, and ``--help`` text.
+
+Each node keeps its table ``PARAMETERS`` (name: ``(default, description)``, the weighing
+node ``(default, description, read_only)``), plus optionally ``LIMITS`` (name: ``(min,
+max)``, inclusive, in the parameter's unit) and ``READ_ONLY`` (names fixed at start-up).
+:func:`declare_table` turns them into parameter descriptors with a ``FloatingPointRange``
+or ``IntegerRange`` and ``read_only``, so that ``ros2 param describe`` shows the limits and
+``ros2 param set`` is refused at once outside them.
+
+A start-up value (``-p name:=value``, a params file) outside the limits or of the wrong type
+does not end the node: the parameter keeps its default, the problem is logged as an error
+naming the parameter and returned, and the node reports it (state ``error`` and
+``/diagnostics``) instead of running with a value nobody asked for.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Iterable, List, Mapping, Optional, Sequence, Tuple
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+#: Inclusive ``(min, max)`` of a numeric parameter, in its unit.
+Limits = Tuple[float, float]
+
+#: Node attribute holding the names of the float parameters (integers are taken as floats).
+FLOATS_ATTRIBUTE = '_emfc_float_parameters'
+#: Node attribute holding the refused start-up values not yet replaced (name: message).
+REFUSED_ATTRIBUTE = '_emfc_refused_start_up_values'
+_TYPE_NAMES = {bool: 'bool', int: 'integer', float: 'double', str: 'string'}
+
+
+def descriptor(default: Any, text: str, limits: Optional[Limits] = None,
+               read_only: bool = False) -> ParameterDescriptor:
+    """
+    Build the descriptor of one table entry.
+
+    Parameters
+    ----------
+    default : object
+        The default value (its type selects the kind of range).
+    text : str
+        Description with the unit.
+    limits : tuple of float, optional
+        Inclusive ``(min, max)``; integers for integer parameters.
+    read_only : bool, optional
+        Fixed at start-up (``ros2 param set`` is refused).
+
+    Returns
+    -------
+    rcl_interfaces.msg.ParameterDescriptor
+        Name and type are filled in by ``declare_parameter``.
+
+    Raises
+    ------
+    ValueError
+        For limits on a parameter that is not an integer or a float, or min > max.
+    """
+    d = ParameterDescriptor(description=text, read_only=bool(read_only))
+    if limits is None:
+        return d
+    low, high = limits
+    if not low <= high:
+        raise ValueError(f'limits ({low}, {high}): min must not exceed max')
+    if isinstance(default, bool) or not isinstance(default, (int, float)):
+        raise ValueError(f'limits on a non-numeric parameter (default {default!r})')
+    if isinstance(default, int):
+        d.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=1)]
+    else:
+        d.floating_point_range = [FloatingPointRange(from_value=float(low),
+                                                     to_value=float(high), step=0.0)]
+    d.additional_constraints = f'from {low} to {high}'
+    return d
+
+
+def _entry(value: Sequence) -> Tuple[Any, str, bool]:
+    """``(default, text, read_only)`` of a table entry with two or three fields."""
+    if len(value) == 3:
+        return value[0], value[1], bool(value[2])
+    return value[0], value[1], False
+
+
+def declare_table(node: Node, table: Mapping[str, Sequence],
+                  limits: Optional[Mapping[str, Limits]] = None,
+                  read_only: Iterable[str] = ()) -> List[str]:
+    """
+    Declare a node's parameter table with descriptors; report refused start-up values.
+
+    Parameters already declared from the overrides (nodes created with
+    ``automatically_declare_parameters_from_overrides``) are declared again with their
+    descriptor and the same start-up value. An integer start-up value of a float parameter is
+    taken as that float (also later, on ``ros2 param set``).
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node.
+    table : mapping
+        Name to ``(default, description)`` or ``(default, description, read_only)``.
+    limits : mapping, optional
+        Name to inclusive ``(min, max)``.
+    read_only : iterable of str, optional
+        Names fixed at start-up (in addition to those the table marks).
+
+    Returns
+    -------
+    list of str
+        One message per refused start-up value (the parameter then has its default); each
+        is also logged as an error.
+    """
+    limits = dict(limits or {})
+    fixed = set(read_only)
+    unknown = (set(limits) | fixed) - set(table)
+    if unknown:
+        raise ValueError(f'limits or read_only name undeclared parameters: {sorted(unknown)}')
+    problems: List[str] = []
+    floats = set()
+    refused = _refusals(node)
+    for name, value in table.items():
+        default, text, ro = _entry(value)
+        if isinstance(default, float):
+            floats.add(name)
+        desc = descriptor(default, text, limits.get(name), ro or name in fixed)
+        if node.has_parameter(name):                # declared from the overrides
+            node.undeclare_parameter(name)
+        # rclpy has no public accessor of the start-up overrides; declare_parameter takes
+        # the value from there and checks it against the default's type and the limits.
+        overrides = getattr(node, '_parameter_overrides', {})
+        start = overrides[name].value if name in overrides else None
+        if isinstance(default, float) and isinstance(start, int) and \
+                not isinstance(start, bool):
+            start = float(start)
+            overrides[name] = Parameter(name, Parameter.Type.DOUBLE, start)
+        try:
+            node.declare_parameter(name, default, desc)
+        except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
+            reason = _reason(name, start, default, desc, exc)
+            problems.append(reason)
+            node.get_logger().error(reason)
+            node.declare_parameter(name, default, descriptor(
+                default, text, limits.get(name), ro or name in fixed), ignore_override=True)
+            refused[name] = reason      # after the declaration, which counts as a set
+    # rclpy concatenates what each pre-set callback returns: one callback per node.
+    known = getattr(node, FLOATS_ATTRIBUTE, None)
+    if known is None:
+        known = set()
+        setattr(node, FLOATS_ATTRIBUTE, known)
+        node.add_pre_set_parameters_callback(
+            lambda params: [_as_float(p) if p.name in known else p for p in params])
+    known.update(floats)
+    return problems
+
+
+def pending_refusals(node: Node) -> str:
+    """
+    The refused start-up values of a node that no valid value has replaced yet, or ''.
+
+    A node does not start its work (arm, record) while this is not empty: the user set a
+    value and got the default instead. Setting the parameter (to a valid value: an invalid
+    one is refused) clears its entry; a read-only one needs a restart.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        A node whose parameters :func:`declare_table` declared.
+
+    Returns
+    -------
+    str
+        The messages, joined by ``'; '``.
+    """
+    return '; '.join(getattr(node, REFUSED_ATTRIBUTE, {}).values())
+
+
+def _refusals(node: Node) -> dict:
+    """The node's refused start-up values (created, with the callback that clears them)."""
+    refused = getattr(node, REFUSED_ATTRIBUTE, None)
+    if refused is None:
+        refused = {}
+        setattr(node, REFUSED_ATTRIBUTE, refused)
+
+        def replaced(params: List[Parameter]) -> None:
+            for p in params:
+                refused.pop(p.name, None)
+
+        node.add_post_set_parameters_callback(replaced)
+    return refused
+
+
+def _as_float(p: Parameter) -> Parameter:
+    """An integer value of a float parameter as that float."""
+    if p.type_ == Parameter.Type.INTEGER:
+        return Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
+    return p
+
+
+def _reason(name: str, value: Any, default: Any, desc: ParameterDescriptor,
+            exc: Exception) -> str:
+    """The message for a refused start-up value."""
+    if isinstance(exc, InvalidParameterTypeException) or \
+            type(value) is not type(default):
+        why = f'must be of type {_type_name(default)}'
+    else:
+        why = f'must be {describe_limits(desc)}'
+    return (f'parameter {name}: start-up value {value!r} refused: it {why}; the parameter '
+            f'keeps its default {default!r}')
+
+
+def _type_name(default: Any) -> str:
+    """The ROS type name of a default value (or of a declared type)."""
+    if isinstance(default, Parameter.Type):
+        return default.name.lower()
+    if isinstance(default, list):
+        return 'array'
+    return _TYPE_NAMES.get(type(default), type(default).__name__)
+
+
+def describe_limits(desc: ParameterDescriptor) -> str:
+    """
+    The limits of a descriptor as text (``'from 0.0 to 2.0'``), or ''.
+
+    Parameters
+    ----------
+    desc : rcl_interfaces.msg.ParameterDescriptor
+        The descriptor.
+
+    Returns
+    -------
+    str
+        Text for error messages and ``--help``.
+    """
+    for ranges in (desc.floating_point_range, desc.integer_range):
+        if ranges:
+            return f'from {ranges[0].from_value} to {ranges[0].to_value}'
+    return ''
+
+
+def help_text(name: str, doc: str, table: Mapping[str, Sequence],
+              limits: Optional[Mapping[str, Limits]] = None,
+              read_only: Iterable[str] = (), extra: str = '') -> str:
+    """
+    The ``--help`` text of a node executable.
+
+    Parameters
+    ----------
+    name : str
+        Node name.
+    doc : str
+        The node module's docstring (purpose, topics, services).
+    table, limits, read_only
+        As for :func:`declare_table`.
+    extra : str, optional
+        Further parameters not in the table (free text).
+
+    Returns
+    -------
+    str
+        Usage, the docstring, and one entry per parameter: default, limits, fixed at
+        start-up, description.
+    """
+    limits = dict(limits or {})
+    fixed = set(read_only)
+    lines = [f'usage: {name} [--help] [--ros-args -p NAME:=VALUE ... '
+             '[--params-file FILE] [-r FROM:=TO] ...]', '']
+    lines += [line.rstrip() for line in (doc or '').strip().splitlines()]
+    lines += ['', 'Parameters (name: type, default; limits; description):', '']
+    for pname, value in table.items():
+        default, text, ro = _entry(value)
+        kind = _type_name(default)
+        shown = default if not isinstance(default, Parameter.Type) else 'unset'
+        head = f'  {pname}: {kind}, default {shown!r}'
+        if pname in limits:
+            low, high = limits[pname]
+            head += f'; from {low} to {high}'
+        if ro or pname in fixed:
+            head += '; read-only (fixed at start-up)'
+        lines.append(head)
+        lines += _wrap(text, '      ')
+    if extra:
+        lines += [''] + _wrap(extra, '  ')
+    lines += [''] + _wrap(f'Start it with `ros2 run emfc_ros {name} --ros-args ...`; `ros2 '
+                          f'param describe /<namespace>/{name} <parameter>` shows the same '
+                          'limits on a running node.', '')
+    return '\n'.join(lines) + '\n'
+
+
+def _wrap(text: str, indent: str, width: int = 92) -> List[str]:
+    """Wrap ``text`` at word boundaries with ``indent``."""
+    out, line = [], ''
+    for word in text.split():
+        if line and len(indent) + len(line) + 1 + len(word) > width:
+            out.append(indent + line)
+            line = word
+        else:
+            line = f'{line} {word}' if line else word
+    if line:
+        out.append(indent + line)
+    return out
+
+
+def startup_line(node: Node, module: Any) -> str:
+    """
+    The one start-up log line of a node: its key parameters and those set at start-up.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node, constructed.
+    module : module or None
+        The node's module: ``PARAMETERS`` (the table) and ``STARTUP_KEYS`` (the parameters
+        always shown: mode, rates, files), both optional.
+
+    Returns
+    -------
+    str
+        ``started as /ns/name: key=value, ...; set at start-up: name=value, ...``.
+    """
+    table = getattr(module, 'PARAMETERS', {}) or {}
+    keys = [k for k in getattr(module, 'STARTUP_KEYS', ()) if k in table]
+    changed = []
+    for pname, entry in table.items():
+        if pname in keys:
+            continue
+        value = _value_of(node, pname)
+        if value is not None and value != _entry(entry)[0]:
+            changed.append(pname)
+    parts = [f'{k}={_short(_value_of(node, k))}' for k in keys]
+    line = f'started as {node.get_fully_qualified_name()}'
+    if parts:
+        line += ': ' + ', '.join(parts)
+    if changed:
+        line += '; set at start-up: ' + ', '.join(
+            f'{k}={_short(_value_of(node, k))}' for k in changed)
+    return line
+
+
+def _value_of(node: Node, name: str) -> Any:
+    """A parameter's value, or None if it is not declared or not set."""
+    try:
+        return node.get_parameter(name).value
+    except Exception:       # undeclared, or declared with a type and no value
+        return None
+
+
+def _short(value: Any, width: int = 60) -> str:
+    """``repr`` of a value, cut to ``width`` characters."""
+    text = repr(value)
+    return text if len(text) <= width else text[:width - 3] + '...'
