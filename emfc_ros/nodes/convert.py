@@ -11,6 +11,7 @@ from typing import Callable, Mapping, Optional, Tuple
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
+from rclpy.clock import Clock as RosClock, ClockType
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
@@ -274,3 +275,19 @@ def subscribe_excitation(node: Node, on_excitation: Callable) -> None:
         Called with each ``std_msgs/Float64MultiArray`` block.
     """
     node.create_subscription(Float64MultiArray, 'excitation', on_excitation, BLOCK_QOS)
+
+
+def steady_clock() -> RosClock:
+    """
+    A steady (monotonic wall) clock for timers that must not follow ``/clock``.
+
+    Watchdogs, device polling, discovery and diagnostics run in wall time whatever
+    ``use_sim_time`` says (under simulated time a node-clock timer stops while ``/clock``
+    does not tick and fires in bursts while it runs fast).
+
+    Returns
+    -------
+    rclpy.clock.Clock
+        A new clock of type ``STEADY_TIME``.
+    """
+    return RosClock(clock_type=ClockType.STEADY_TIME)

@@ -56,7 +56,7 @@ from emfc_ros.core.excitation_queue import DROPPED, ExcitationQueue
 from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
-    node_diagnostics, subscribe_device_inputs)
+    node_diagnostics, steady_clock, subscribe_device_inputs)
 from emfc_ros.nodes.params import declare_table
 from emfc_ros.nodes.spin import node_main
 
@@ -309,14 +309,16 @@ class DaqBridgeNode(Node):
         self.create_service(Trigger, '~/reset', self._srv_reset)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         period = float(self._param('diagnostics_period_s'))
-        self.create_timer(min(60.0, max(0.05, period)), self._publish_diagnostics)
-        self.create_timer(0.01, self._watchdog_tick)
+        self.create_timer(min(60.0, max(0.05, period)), self._publish_diagnostics,
+                          clock=steady_clock())
+        self.create_timer(0.01, self._watchdog_tick, clock=steady_clock())
         self._retry_timer = None
         if self._backend is not None and self._param('autostart'):
             ok, message = self._start()
             if not ok:
                 self.get_logger().error(f'{message}; retrying every {RETRY_PERIOD_S} s')
-                self._retry_timer = self.create_timer(RETRY_PERIOD_S, self._retry_start)
+                self._retry_timer = self.create_timer(RETRY_PERIOD_S, self._retry_start,
+                                                      clock=steady_clock())
 
     def _retry_start(self) -> None:
         """Autostart: try again until the device answers (or someone calls a service)."""
@@ -552,7 +554,7 @@ class DaqBridgeNode(Node):
         if getattr(self._backend, 'name', '') == 'sim':
             block = self._config.block_size
             period = min(0.02, max(0.001, 0.5 * block / self._rate))
-            self._sim_timer = self.create_timer(period, self._sim_tick)
+            self._sim_timer = self.create_timer(period, self._sim_tick, clock=steady_clock())
         else:
             self._reader = threading.Thread(target=self._read_loop, daemon=True,
                                             name='daq-bridge-reader')

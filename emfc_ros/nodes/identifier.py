@@ -35,7 +35,7 @@ import yaml
 from emfc_ros.core.blocks import Continuity, SequenceTracker
 from emfc_ros.core.errors import BlockError
 from emfc_ros.nodes.convert import (
-    BLOCK_QOS, LATCHED_QOS, msg_to_block, msg_to_description, node_diagnostics)
+    BLOCK_QOS, LATCHED_QOS, msg_to_block, msg_to_description, node_diagnostics, steady_clock)
 from emfc_ros.nodes.params import declare_table
 from emfc_ros.nodes.spin import node_main
 
@@ -90,7 +90,7 @@ class IdentifierNode(Node):
         self.create_service(Trigger, '~/start_accumulating', self._srv_start)
         self.create_service(Trigger, '~/identify', self._srv_identify)
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.create_timer(1.0, self._publish_diagnostics)
+        self.create_timer(1.0, self._publish_diagnostics, clock=steady_clock())
 
     # -- parameters ------------------------------------------------------------------------
 

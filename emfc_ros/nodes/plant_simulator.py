@@ -80,7 +80,7 @@ from emfc_ros.core.sim.simulator import Simulator
 from emfc_ros.core.sim.state_rate import StateRateLimiter
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
-    node_diagnostics, subscribe_device_inputs, subscribe_excitation)
+    node_diagnostics, steady_clock, subscribe_device_inputs, subscribe_excitation)
 from emfc_ros.nodes.params import declare_table
 from emfc_ros.nodes.spin import node_main
 
@@ -156,11 +156,12 @@ CONTROL_PREFIX = 'control.'
 #: Inclusive limits of the numeric parameters (descriptors; ``ros2 param describe``).
 LIMITS = {'block_size': (1, 1_000_000), 'seed': (0, 2 ** 63 - 1), 'substeps': (0, 64),
           'load_mass_kg': (0.0, 2.0), 'command_delay_periods': (0, 1),
-          'min_subscribers': (0, 100)}
+          'min_subscribers': (0, 100), 'max_state_wall_rate_Hz': (0.0, 1.0e6)}
 #: Parameters fixed at start-up (``state_rate_Hz`` too in lockstep mode: refused then).
 READ_ONLY = ('sample_rate_Hz', 'block_size', 'time_mode', 'seed', 'noise', 'quantisation',
              'substeps', 'hold', 'publish_groups', 'command_delay_periods', 'lockstep_match',
-             'min_subscribers') + tuple(n for n in PARAMETERS if n.startswith(CONTROL_PREFIX))
+             'min_subscribers', 'max_state_wall_rate_Hz') + \
+    tuple(n for n in PARAMETERS if n.startswith(CONTROL_PREFIX))
 #: Shown in the start-up log line (with every parameter set to a non-default value).
 STARTUP_KEYS = ('time_mode', 'sample_rate_Hz', 'load_mass_kg', 'balance_file',
                 'control.enabled')
@@ -286,11 +287,12 @@ class PlantSimulatorNode(Node):
         self.create_service(Trigger, '~/reset', self._srv_reset)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._publish_descriptions()
-        self.create_timer(1.0, self._publish_diagnostics)
+        self.create_timer(1.0, self._publish_diagnostics, clock=steady_clock())
         self._wall_start = time.monotonic()
         if self._mode == 'wall':
             block = int(self._param('block_size'))
-            self.create_timer(min(0.02, max(0.001, 0.5 * block / self._rate)), self._wall_tick)
+            self.create_timer(min(0.02, max(0.001, 0.5 * block / self._rate)), self._wall_tick,
+                              clock=steady_clock())
         elif self._mode == 'lockstep':
             # Wall-clock (steady) timer: starts the loop and re-publishes an unanswered state.
             self.create_timer(0.005, self._lockstep_tick,

@@ -49,7 +49,7 @@ from emfc_ros.core.paths import config_file
 from emfc_ros.core.weighing import (compensation_force_N, DynamicWeigher, Reading,
                                     ReadingFilter, WeighingCalibration, WeighingError)
 from emfc_ros.nodes.convert import (BLOCK_QOS, diagnostic_status, LATCHED_QOS, msg_to_block,
-                                    msg_to_description, node_diagnostics)
+                                    msg_to_description, node_diagnostics, steady_clock)
 from emfc_ros.nodes.params import declare_table
 from emfc_ros.nodes.spin import node_main
 
@@ -166,7 +166,7 @@ class WeighingNode(Node):
         self.create_service(Trigger, '~/tare', self._srv_tare)
         self.create_service(Trigger, '~/adjust', self._srv_adjust)
         self.create_service(Trigger, '~/clear_tare', self._srv_clear_tare)
-        self.create_timer(1.0, self._on_timer)
+        self.create_timer(1.0, self._on_timer, clock=steady_clock())
 
     # -- configuration ---------------------------------------------------------------------
 

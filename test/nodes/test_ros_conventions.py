@@ -215,6 +215,31 @@ def test_startup_line_on_rosout_and_shutdown_line_after_sigint(executor, ros_con
         assert not stray, stray
 
 
+def test_timers_run_on_wall_time_under_use_sim_time_without_a_clock(executor, ros_context,
+                                                                    processes):
+    """Diagnostics and watchdogs run on the steady clock: no /clock, still 1 Hz (issue 13)."""
+    counts = {}
+
+    def on_diag(msg):
+        for status in msg.status:
+            counts[status.name] = counts.get(status.name, 0) + 1
+
+    node = rclpy.create_node('diag_counter', context=ros_context)
+    node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 100)
+    executor.add_node(node)
+    for name in NODES:
+        args = ['--ros-args', '-r', '__ns:=/simtime', '-p', 'use_sim_time:=true']
+        for k, v in QUIET.get(name, []):
+            args += ['-p', f'{k}:={str(v).lower()}']
+        processes.start(ros_harness.node_executable(name) + args)
+
+    def ticking(name):
+        return sum(c for n, c in counts.items() if n.startswith(name)) >= 3
+
+    assert ros_harness.spin_until(executor, lambda: all(ticking(n) for n in NODES),
+                                  START_TIMEOUT_S), counts
+
+
 @pytest.mark.parametrize('name, value, needle', [
     ('weighing', 'reference_mass_kg:=-1.0', 'reference_mass_kg'),
     ('signal_generator', 'block_size:=0', 'block_size'),
