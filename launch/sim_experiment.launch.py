@@ -7,7 +7,7 @@ up in any order: the generator holds sample 0 until the plant's subscription and
 acknowledgements are matched and re-sends a window that is not acknowledged (README,
 signal_generator). The plant subscribes to the excitation only once ``min_subscribers``
 (default 1) subscriptions to ``/emfc/measurements`` are there, so the experiment starts
-when a recorder listens, started before or after the launch: ``ros2 run emfc_ros recorder``
+when a recorder listens (start it after the launch, README): ``ros2 run emfc_ros recorder``
 with ``use_sim_time:=true`` and ``/clock`` among its topics (README, plant_simulator) or
 ``ros2 bag record -s mcap /emfc/excitation /emfc/measurements /clock ...``.
 

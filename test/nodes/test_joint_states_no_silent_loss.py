@@ -14,6 +14,7 @@ signal generator.
 
 import json
 from pathlib import Path
+import shlex
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
@@ -28,6 +29,7 @@ from emfc_ros.core.signals import experiment_from_config
 from emfc_ros.nodes.convert import LATCHED_QOS
 import ros_harness
 
+REPO = Path(__file__).resolve().parents[2]
 START_TIMEOUT_S = 180.0
 TIMEOUT_S = 120.0
 RATE_HZ = 10000.0
@@ -52,6 +54,17 @@ def _argv(name, params):
         text = str(value).lower() if isinstance(value, bool) else str(value)
         argv += ['-p', f'{key}:={text}']
     return argv
+
+
+def readme_recorder_argv():
+    """The README's ``ros2 run emfc_ros recorder ... use_sim_time`` line, as argv."""
+    text = (REPO / 'README.md').read_text().replace('\\\n', '')   # shell line continuations
+    lines = [line for line in text.splitlines()
+             if line.startswith('ros2 run emfc_ros recorder') and 'use_sim_time:=true' in line]
+    assert len(lines) == 1, lines
+    argv = shlex.split(lines[0], comments=True)
+    assert argv[:4] == ['ros2', 'run', 'emfc_ros', 'recorder'], argv
+    return ros_harness.node_executable('recorder') + argv[4:]
 
 
 class Watcher:
@@ -82,24 +95,26 @@ def test_every_published_joint_state_is_recorded_at_full_speed(tmp_path, process
     experiment = tmp_path / 'experiment.yaml'
     experiment.write_text(yaml.safe_dump({'experiment': unflatten(EXPERIMENT)}))
     total = experiment_from_config(unflatten(EXPERIMENT)).total_samples
-    bag = tmp_path / 'bag'
     watcher = Watcher(ros_context)
     executor.add_node(watcher.node)
 
+    # The launch file's two nodes (the plant waits for a listener of its measurements),
     plant = processes.start(_argv('plant_simulator', {
         'time_mode': 'owner', 'load_mass_kg': 0.1274, 'state_rate_Hz': STATE_RATE_HZ,
-        'publish_groups': False}))
-    # As the README records the launch file's experiment: simulated time, /clock recorded.
-    recorder = processes.start(_argv('recorder', {
-        'use_sim_time': True, 'output': str(bag), 'discovery_period_s': 0.1,
-        'topics': '[joint_states, measurements, /clock]'}))
-    # The recorder subscribes to what it discovers: the experiment starts once it has.
-    assert ros_harness.spin_until(
-        executor, lambda: {'/emfc/joint_states', '/emfc/measurements', '/clock'}
-        <= set(watcher.recorder.get('topics', [])), START_TIMEOUT_S), \
-        f'{watcher.recorder}\n{plant.output()}\n{recorder.output()}'
+        'publish_groups': False, 'min_subscribers': 1}))
+    # The generator waits for the recorder's subscription to the excitation too (the
+    # plant's and the recorder's), as the launch file has it.
     generator = processes.start(_argv('signal_generator', {
-        'experiment_file': str(experiment), 'pacing': 'consumer', 'block_size': 1000}))
+        'experiment_file': str(experiment), 'pacing': 'consumer', 'block_size': 1000,
+        'min_subscribers': 2}))
+    assert ros_harness.spin_until(
+        executor, lambda: watcher.plant and watcher.generator.get('waiting', '').startswith(
+            'consumer'), START_TIMEOUT_S), \
+        f'{watcher.generator}\n{generator.output()}\n{plant.output()}'
+    # then the README's recorder line for that experiment, as typed (simulated time, /clock
+    # recorded), in the test's folder, after the launch as the README says.
+    recorder = processes.start(readme_recorder_argv(), cwd=tmp_path)
+    bag = tmp_path / 'my_experiment'
     assert ros_harness.spin_until(
         executor, lambda: watcher.generator.get('state') == 'done'
         and int(watcher.plant.get('simulated_samples', 0)) == total, START_TIMEOUT_S), \
@@ -112,9 +127,10 @@ def test_every_published_joint_state_is_recorded_at_full_speed(tmp_path, process
     # Faster than real time: the limit acted (the 8 s experiment took well under 8 s).
     assert decimated > 0 and published > 0
     # The recorder has written everything the plant published: per block one measurement
-    # block and one /clock, plus the states (its status comes once a second).
+    # block, one /clock and one excitation block, the two latched descriptions, and the
+    # states (its status comes once a second).
     blocks = total // 1000
-    expected = 2 * blocks + published
+    expected = 3 * blocks + 2 + published
     ros_harness.spin_until(
         executor, lambda: watcher.recorder.get('messages', 0) >= expected, TIMEOUT_S)
     assert watcher.recorder.get('dropped', 0) == 0, watcher.recorder
@@ -129,8 +145,13 @@ def test_every_published_joint_state_is_recorded_at_full_speed(tmp_path, process
             header = reader.deserialize(raw, connection.msgtype).header
             stamps.append(header.stamp.sec * 10 ** 9 + header.stamp.nanosec)
     # Every published state is in the bag, once, in order, on the 1 kHz simulated grid.
-    assert counts == {'/emfc/joint_states': published, '/emfc/measurements': blocks,
-                      '/clock': blocks}, (counts, published, decimated, stamps[:5], stamps[-5:])
+    streams = {'/emfc/joint_states': published, '/emfc/measurements': blocks,
+               '/clock': blocks, '/emfc/excitation': blocks}
+    assert {t: counts.get(t) for t in streams} == streams, \
+        (json.dumps(counts), published, decimated)
+    # The latched descriptions (published again when an epoch starts).
+    assert counts['/emfc/excitation/description'] >= 1
+    assert counts['/emfc/measurements/description'] >= 1
     assert len(stamps) == published
     # Stamped with simulated time: the bag lasts the experiment's 8 s (within a block),
     # though the run took a fraction of that.
