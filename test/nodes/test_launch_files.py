@@ -5,7 +5,7 @@ The launch files as users run them: ``ros2 launch emfc_ros <file> [name:=value .
 (``<venv>/share/emfc_ros/launch``) are evaluated by the test stand-in ``test/launch_stub``
 (the Jazzy API subset they use, refusing the rest; ``ros2launch_stub`` does what ``ros2
 launch`` does with the arguments), with the declared defaults and with the argument lines
-the README and each file's docstring show (parsed from them). Every ``Node`` becomes the
+the README, docs/ and each file's docstring show (parsed from them). Every ``Node`` becomes the
 command line ``ros2 launch`` would run, started here as a separate process, and the job the
 file exists for is checked: the whole default identification trajectory answered through
 the simulator and recorded, the hardware experiment through the device emulator, the
@@ -356,6 +356,8 @@ def sim_run(stub, tmp_path_factory):
             '-p', f'output:={bag}', '-p', 'topics:=[excitation, excitation/description, '
             'measurements, measurements/description, /clock]'], logs)
     n_blocks = -(-experiment.total_samples // 1000)
+    # The recorder is the listener the plant waits for (min_subscribers 1) and what the
+    # checks read: a second live listener would race it for the first blocks.
 
     def output():
         return '\n'.join(f'--- {p.argv[0]}\n{p.output()}' for p in procs + [recorder])
