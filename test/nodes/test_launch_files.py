@@ -512,8 +512,9 @@ def test_signal_generator_streams_blocks(stub, tmp_path, processes, executor, ro
         params = launched.processes[0].parameters[0]
         observer.blocks['excitation'].clear()
         gen = start(processes, launched)['signal_generator']
-        assert ros_harness.spin_until(executor, lambda: len(observer.blocks['excitation']) >= 5,
-                                      START_TIMEOUT_S), (where, gen.output())
+        assert ros_harness.spin_until(
+            executor, lambda: len(observer.blocks['excitation']) >= 5
+            and observer.status is not None, START_TIMEOUT_S), (where, gen.output())
         blocks = observer.blocks['excitation']
         size = params['block_size']
         assert all(b.n_samples == size for b in blocks)
