@@ -3,7 +3,11 @@ An experiment on the balance hardware (or the device emulator); needs a full ROS
 
 The signal generator, paced by the wall clock, streams the excitation to the daq_bridge, which
 writes it to the device over UDP ``excitation_lead_s`` ahead of the device's sample clock and
-publishes the measured blocks with the device's sample indices. Record with
+publishes the measured blocks with the device's sample indices. The bridge starts the device
+and subscribes to the excitation once ``min_subscribers`` (default 1) subscriptions to
+``/emfc/measurements`` matched, and the generator holds sample 0 until the bridge's
+subscription matched, so that the recording (started before or after the launch) has the
+experiment from its first sample. Record with
 ``ros2 bag record -s mcap /emfc/excitation /emfc/excitation/description /emfc/measurements
 /emfc/measurements/description /diagnostics``.
 
@@ -38,6 +42,9 @@ def generate_launch_description():
                               description='UDP port of the device'),
         DeclareLaunchArgument('block_size', default_value='1000',
                               description='samples per excitation block'),
+        DeclareLaunchArgument('min_subscribers', default_value='1',
+                              description='the device starts once this many subscriptions to '
+                                          '/emfc/measurements (a recorder) matched; 0: at once'),
         Node(
             package='emfc_ros', executable='daq_bridge', name='daq_bridge',
             namespace='emfc', output='screen', additional_env=env,
@@ -47,6 +54,8 @@ def generate_launch_description():
                 'udp.device_port': ParameterValue(LaunchConfiguration('device_port'),
                                                   value_type=int),
                 'excitation_mode': 'stream',
+                'min_subscribers': ParameterValue(LaunchConfiguration('min_subscribers'),
+                                                  value_type=int),
             }],
         ),
         Node(
@@ -55,6 +64,9 @@ def generate_launch_description():
             parameters=[{
                 'experiment_file': LaunchConfiguration('experiment_file'),
                 'pacing': 'wall',
+                # Sample 0 waits for the bridge's subscription: the excitation sent before
+                # discovery matched would be lost (the start of the experiment never applied).
+                'min_subscribers': 1,
                 'block_size': ParameterValue(LaunchConfiguration('block_size'),
                                              value_type=int),
             }],

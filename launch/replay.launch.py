@@ -4,7 +4,10 @@ Replay the measurements of a recorded bag through the daq_bridge (needs a full R
 The bridge's ``replay`` back-end re-publishes the bag's ``*/measurements`` blocks with their
 recorded sample indices, paced by the original receive times (``pacing:=sample_clock`` paces
 by the sample clock, ``pacing:=fast`` as fast as possible), so that identifiers, controllers
-and plots can be run again on recorded data.
+and plots can be run again on recorded data. The replay starts once ``min_subscribers``
+(default 1) subscriptions to ``/emfc/measurements`` matched, so that the listener (a
+recorder, the identifier) gets the bag from its first block whichever was started first;
+``min_subscribers:=0`` starts at once.
 
     ros2 launch emfc_ros replay.launch.py bag:=out/identification-.../bag pacing:=receive_time
 """
@@ -26,6 +29,9 @@ def generate_launch_description():
         DeclareLaunchArgument('pacing', default_value='receive_time',
                               description="'receive_time', 'sample_clock' or 'fast'"),
         DeclareLaunchArgument('speed', default_value='1.0', description='speed factor'),
+        DeclareLaunchArgument('min_subscribers', default_value='1',
+                              description='the replay starts once this many subscriptions to '
+                                          '/emfc/measurements matched; 0: at once'),
         Node(
             package='emfc_ros', executable='daq_bridge', name='daq_bridge',
             namespace='emfc', output='screen', additional_env=env,
@@ -36,6 +42,8 @@ def generate_launch_description():
                 'replay.pacing': LaunchConfiguration('pacing'),
                 'replay.speed': ParameterValue(LaunchConfiguration('speed'),
                                                value_type=float),
+                'min_subscribers': ParameterValue(LaunchConfiguration('min_subscribers'),
+                                                  value_type=int),
             }],
         ),
     ])

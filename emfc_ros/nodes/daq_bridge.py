@@ -56,7 +56,7 @@ from emfc_ros.core.excitation_queue import DROPPED, ExcitationQueue
 from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
-    node_diagnostics, steady_clock, subscribe_device_inputs)
+    node_diagnostics, steady_clock, subscribe_device_inputs, subscribe_excitation)
 from emfc_ros.nodes.params import declare_table
 from emfc_ros.nodes.spin import node_main
 
@@ -77,6 +77,10 @@ PARAMETERS: Dict[str, Tuple[Any, str]] = {
     'backend': ('sim', "device back-end: 'sim' (simulated balance in process), 'udp' (a "
                        "device or the emulator over UDP), 'replay' (a recorded bag)"),
     'autostart': (True, 'configure and start the device when the node comes up'),
+    'min_subscribers': (0, 'autostart: start the device (or the replay) and subscribe to the '
+                           'excitation only once this many subscriptions to measurements have '
+                           'matched [count], so that a listener started with the node loses '
+                           'nothing'),
     'sample_rate_Hz': (10000.0, 'device sample clock [Hz], (0, 1e7]'),
     'block_size': (1000, 'samples per channel per measurement block [samples], 1 to 65535'),
     'inputs': (list(DEFAULT_INPUTS), 'measured channel names (the unit is the suffix)'),
@@ -183,7 +187,8 @@ LIMITS = {'sample_rate_Hz': (0.0, 1e7), 'block_size': (1, 65535),
           'udp.device_port': (1, 65535), 'udp.bind_port': (0, 65535),
           'udp.heartbeat_period_s': (0.0, 60.0), 'udp.request_timeout_s': (0.0, 60.0),
           'udp.device_timeout_s': (0.0, 60.0), 'udp.reorder_timeout_s': (0.0, 60.0),
-          'sim.seed': (0, 2 ** 63 - 1), 'sim.load_mass_kg': (0.0, 2.0)}
+          'sim.seed': (0, 2 ** 63 - 1), 'sim.load_mass_kg': (0.0, 2.0),
+          'min_subscribers': (0, 100)}
 
 #: Function-generator fields (``funcgen.<output>.<field>``) and their defaults.
 FUNCGEN_FIELDS = {
@@ -301,8 +306,12 @@ class DaqBridgeNode(Node):
         self._pub_ack = self.create_publisher(UInt64, 'excitation/consumed', CONTROL_QOS)
         self._pub_state = self.create_publisher(JointState, 'joint_states', STATE_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        subscribe_device_inputs(self, self._on_excitation, self._on_joint_command,
-                                self._on_array_command)
+        wanted = int(self._param('min_subscribers'))     # declare_table: 0 to 100
+        hold = self._backend is not None and bool(self._param('autostart')) and wanted > 0
+        # Holding for listeners, the excitation is subscribed only once started, so that a
+        # generator waiting for its consumer (min_subscribers) waits for the listeners too.
+        subscribe_device_inputs(self, None if hold else self._on_excitation,
+                                self._on_joint_command, self._on_array_command)
         self.create_service(Trigger, '~/start', self._srv_start)
         self.create_service(Trigger, '~/stop', self._srv_stop)
         self.create_service(Trigger, '~/emergency_stop', self._srv_estop)
@@ -313,12 +322,41 @@ class DaqBridgeNode(Node):
                           clock=steady_clock())
         self.create_timer(0.01, self._watchdog_tick, clock=steady_clock())
         self._retry_timer = None
+        self._listener_timer = None
         if self._backend is not None and self._param('autostart'):
-            ok, message = self._start()
-            if not ok:
-                self.get_logger().error(f'{message}; retrying every {RETRY_PERIOD_S} s')
-                self._retry_timer = self.create_timer(RETRY_PERIOD_S, self._retry_start,
-                                                      clock=steady_clock())
+            if hold:
+                self.get_logger().info(f'waiting for {wanted} subscription(s) to measurements '
+                                       'before starting')
+                self._listener_timer = self.create_timer(
+                    0.05, lambda: self._start_when_listened(wanted), clock=steady_clock())
+            else:
+                self._autostart()
+
+    def _autostart(self) -> None:
+        """Start the device; retry every RETRY_PERIOD_S while it does not answer."""
+        ok, message = self._start()
+        if not ok:
+            self.get_logger().error(f'{message}; retrying every {RETRY_PERIOD_S} s')
+            self._retry_timer = self.create_timer(RETRY_PERIOD_S, self._retry_start,
+                                                  clock=steady_clock())
+
+    def _start_when_listened(self, wanted: int) -> None:
+        """Autostart once ``min_subscribers`` subscriptions to measurements matched."""
+        matched = self._pub['measurements'].get_subscription_count()
+        if matched < wanted or self._listener_timer is None:
+            return
+        self._end_hold()
+        if self._state == 'running':        # started through ~/start meanwhile
+            return
+        self.get_logger().info(f'{matched} subscription(s) to measurements matched: starting')
+        self._autostart()
+
+    def _end_hold(self) -> None:
+        """Stop waiting for listeners (min_subscribers) and subscribe to the excitation."""
+        if self._listener_timer is not None:
+            self.destroy_timer(self._listener_timer)
+            self._listener_timer = None
+            subscribe_excitation(self, self._on_excitation)
 
     def _retry_start(self) -> None:
         """Autostart: try again until the device answers (or someone calls a service)."""
@@ -865,6 +903,7 @@ class DaqBridgeNode(Node):
         return response
 
     def _srv_start(self, request: Trigger.Request, response: Trigger.Response):
+        self._end_hold()                    # an explicit start does not wait for listeners
         response.success, response.message = self._start()
         return response
 

@@ -555,3 +555,32 @@ def test_autostart_waits_for_a_device_that_is_not_there_yet(executor, ros_contex
         for first, _, samples in probe.blocks:
             np.testing.assert_array_equal(samples, record[first])
     assert bridge.diagnostic_values()['state'] == 'running'
+
+
+def test_min_subscribers_holds_the_start_and_the_excitation_until_a_listener(
+        executor, ros_context):
+    bridge = DaqBridgeNode(context=ros_context, parameter_overrides=bridge_params(
+        backend='sim', min_subscribers=1))
+    pub_node = rclpy.create_node('exc_pub', context=ros_context)
+    excitation_pub = pub_node.create_publisher(Float64MultiArray, 'excitation', BLOCK_QOS)
+    setup_nodes(executor, bridge, pub_node)
+    ros_harness.spin_until(executor, lambda: False, 1.0)
+    # Nobody listens to the measurements: not started, the excitation not subscribed.
+    assert bridge.diagnostic_values()['state'] == 'idle'
+    assert bridge.diagnostic_values()['published_blocks'] == 0
+    assert excitation_pub.get_subscription_count() == 0
+    probe = Probe(ros_context)
+    setup_nodes(executor, probe.node)
+    assert ros_harness.spin_until(executor, lambda: len(probe.blocks) >= 2, TIMEOUT_S)
+    assert probe.blocks[0][0] == 0                   # the listener has it from the start
+    assert bridge.diagnostic_values()['state'] == 'running'
+    assert ros_harness.spin_until(
+        executor, lambda: excitation_pub.get_subscription_count() >= 1, TIMEOUT_S)
+
+
+def test_an_invalid_min_subscribers_is_an_error_that_says_why(executor, ros_context):
+    bridge = DaqBridgeNode(context=ros_context, parameter_overrides=bridge_params(
+        backend='sim', min_subscribers=-1))
+    values = bridge.diagnostic_values()
+    assert values['state'] == 'error'
+    assert 'min_subscribers' in values['error'], values
