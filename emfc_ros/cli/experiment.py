@@ -212,6 +212,39 @@ def bag_custom_data(plan: RunPlan, load_kg: float, coupled: bool) -> dict:
                 'source': source}}
 
 
+class ExperimentFault(RuntimeError):
+    """The device did not apply the excitation as commanded (a latched fault)."""
+
+
+def fault_message(faults, offset: Optional[int], total: int, rate: float, bag: Path) -> str:
+    """
+    What failed, in the experiment's samples, and what was kept.
+
+    Parameters
+    ----------
+    faults : sequence of Fault
+        The daq_bridge's latched faults.
+    offset : int or None
+        Device index of experiment sample 0.
+    total : int
+        Samples in the experiment.
+    rate : float
+        Sample rate [Hz].
+    bag : pathlib.Path
+        The bag (closed on the way out, with the faults in its custom data).
+
+    Returns
+    -------
+    str
+        The message.
+    """
+    from emfc_ros.core.device.faults import describe
+    lines = describe(faults, None if offset is None else int(offset), total, rate)
+    return ('the device did not apply the excitation as commanded, the experiment failed:\n  '
+            + lines.replace('\n', '\n  ') + f'\n  the bag {bag} keeps what was recorded up '
+            'to here, with the faults in its custom data (emfc_ros.faults)')
+
+
 def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = None,
            live: Optional[dict] = None) -> dict:
     """
@@ -464,6 +497,11 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
             if time.monotonic() - t0 > plan.timeout_s:
                 raise RuntimeError(f'experiment not finished after {plan.timeout_s} s: '
                                    f'{min(measured(), total)} of {total} samples measured')
+            if on_bridge and device_node.faults():
+                # The recorder keeps the faults in the bag once their description is in.
+                spin_until(lambda: recorder.recorded_faults() > 0, 5.0)
+                raise ExperimentFault(fault_message(device_node.faults(), seen['offset'],
+                                                    total, rate, bag))
             if on_bridge and len(seen['epochs']) > 1:
                 raise RuntimeError(f'the device stream restarted during the experiment '
                                    f'(epochs {sorted(seen["epochs"])}): the device was lost '

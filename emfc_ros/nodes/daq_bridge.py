@@ -49,6 +49,7 @@ from emfc_ros.core.blocks import Block, Channel, Continuity, SequenceTracker, St
 from emfc_ros.core.device.backend import (create_backend, DEFAULT_INPUTS, DEFAULT_OUTPUTS,
                                           device_config_from_mapping, DeviceConfig)
 from emfc_ros.core.device.errors import DeviceConfigError, DeviceError
+from emfc_ros.core.device.faults import describe, Fault, FaultMonitor
 from emfc_ros.core.device.function_generator import GeneratorSpec, make_signal
 from emfc_ros.core.device.sim_backend import load_parameters
 from emfc_ros.core.errors import BlockError, ConfigError
@@ -286,6 +287,8 @@ class DaqBridgeNode(Node):
         self._reset_stream_state()
         self._estop = False
         self._tripped = False
+        self._monitor = FaultMonitor()
+        self._safe_failed = ''
         self._command_N = 0.0
         self._command_time = -math.inf
         self._last_position_m = 0.0
@@ -581,6 +584,10 @@ class DaqBridgeNode(Node):
                 self._anchor_ns = time.monotonic_ns()
                 self._start_time_ns = self.get_clock().now().nanoseconds
                 self._epoch = epoch
+                self._monitor.reset(self._health(), epoch)
+                if self._estop:             # the e-stop is still latched: still a fault
+                    self._monitor.add('emergency_stop', 0, None,
+                                      'emergency stop latched: outputs at their safe values')
         except (DeviceError, DeviceConfigError) as exc:
             self._state = 'error'
             self._last_error = f'start failed: {exc}'
@@ -814,6 +821,14 @@ class DaqBridgeNode(Node):
             if self._tripped:
                 self._tripped = False
                 self._restore_generator()
+                if kind not in (Continuity.FIRST, Continuity.RESTART):
+                    # The same stream goes on after a gap the outputs spent at their safe
+                    # values: the samples between were not applied.
+                    self._latch([self._monitor.add(
+                        'excitation_watchdog', self._counts.get('watchdog_trip_device_index'),
+                        None, 'the excitation stopped for longer than watchdog_timeout_s '
+                        'and then went on: the outputs were at their safe values in between '
+                        'and the rest is applied with a new offset')])
             if self._estop:
                 self._counts['excitation_dropped_estop'] += 1
                 return                          # latched: nothing is queued until ~/reset
@@ -849,24 +864,75 @@ class DaqBridgeNode(Node):
             self._last_error = f'function generator restore failed: {exc}'
 
     def _drive_safe(self, why: str) -> str:
-        """Outputs to their safe values now: the device's generator, and safe setpoints."""
+        """
+        Outputs to their safe values now: safe setpoints at once, the device's generator.
+
+        The generator request (with its retries, seconds when the device is gone) runs in a
+        thread of its own, so the executor never waits for the device; a refusal is latched
+        as a ``safe_outputs_unconfirmed`` fault and stops the device (STOP also drives the
+        outputs safe).
+        """
         with self._lock:
             self._queue = ExcitationQueue(self._safe)
             self._offset = None
             self._command_N = 0.0
-        try:
-            self._backend.set_function_generator(self._safe_specs())
-        except (DeviceError, DeviceConfigError) as exc:
-            # The device did not take it: stop sampling (STOP also drives the outputs safe).
-            self._last_error = f'{why}: generator request failed ({exc}); stopping the device'
-            self._stop()
-        # After the device's answer: an upper bound of the sample index at which it acted.
         index = self._device_index_now()
         self._counts[f'{why}_device_index'] = index
-        return f'outputs driven to {self._safe.tolist()} V from about device sample {index}'
+        threading.Thread(target=self._confirm_safe, args=(why,), daemon=True,
+                         name='daq-bridge-safe').start()
+        return f'outputs to {self._safe.tolist()} V from about device sample {index}'
+
+    def _confirm_safe(self, why: str) -> None:
+        backend = self._backend
+        try:
+            backend.set_function_generator(self._safe_specs())
+        except (DeviceError, DeviceConfigError) as exc:
+            self._safe_failed = f'{why}: the device did not confirm the safe outputs ({exc})'
+            return
+        self._counts['safe_outputs_confirmed'] += 1
+
+    def _health(self) -> Dict[str, Any]:
+        try:
+            return self._backend.health() if self._backend is not None else {}
+        except (DeviceError, OSError):
+            return {}
+
+    def _latch(self, faults: Sequence[Fault]) -> None:
+        """Report newly latched faults: log, description, diagnostics."""
+        if not faults:
+            return
+        self._counts['faults'] += len(faults)
+        for line in describe(faults).splitlines():
+            self.get_logger().error(f'fault: {line}')
+        self._publish_descriptions()
+        self._publish_diagnostics()
+
+    def faults(self) -> Tuple[Fault, ...]:
+        """
+        The latched faults of this run (for in-process supervisors).
+
+        Returns
+        -------
+        tuple of Fault
+            Oldest first; empty when the run is clean.
+        """
+        return self._monitor.faults
 
     def _watchdog_tick(self) -> None:
-        if self._state != 'running' or self._tripped or self._estop:
+        if self._state != 'running':
+            return
+        if self._safe_failed:
+            message, self._safe_failed = self._safe_failed, ''
+            self._last_error = message
+            self._latch([self._monitor.add('safe_outputs_unconfirmed',
+                                           self._device_index_now(), None, message)])
+            self._stop()
+            return
+        new = self._monitor.observe(self._health(), self._device_index_now(),
+                                    self._last_end or 0,
+                                    float(getattr(self._backend, 'device_timeout_s', 1.0)))
+        self._latch(new)
+        if self._tripped or self._estop:
             return
         last = self._last_excitation
         if last is None or not any(not s.active for s in self._specs):
@@ -874,8 +940,16 @@ class DaqBridgeNode(Node):
         if time.monotonic() - last > self._runtime['watchdog_timeout_s']:
             self._tripped = True
             self._counts['watchdog_trips'] += 1
+            with self._lock:
+                pending = self._queue.queued
+                head = self._queue.head_index
             message = self._drive_safe('watchdog_trip')
             self.get_logger().warning(f'excitation watchdog tripped: {message}')
+            if pending:
+                self._latch([self._monitor.add(
+                    'excitation_watchdog', head, pending,
+                    f'the excitation watchdog tripped with {pending} excitation samples '
+                    'still queued: they were not applied')])
 
     def _srv_estop(self, request: Trigger.Request, response: Trigger.Response):
         if self._backend is None:
@@ -887,11 +961,23 @@ class DaqBridgeNode(Node):
             self._drive_safe('emergency_stop')
         response.success = True
         self.get_logger().warning(response.message)
+        if self._state == 'running':
+            self._latch([self._monitor.add('emergency_stop',
+                                           self._counts['emergency_stop_device_index'], None,
+                                           'emergency stop: outputs at their safe values')])
         return response
 
     def _srv_reset(self, request: Trigger.Request, response: Trigger.Response):
+        faults = self._monitor.faults
+        if faults:
+            # Acknowledged: the next data are clean again (the bag keeps the record).
+            self._monitor.reset(self._health(), self._epoch or 0)
+            self._publish_descriptions()
+            self.get_logger().info(f'{len(faults)} fault(s) acknowledged by ~/reset')
         if not self._estop and not self._tripped:
-            response.success, response.message = True, 'nothing to reset'
+            response.success = True
+            response.message = f'{len(faults)} fault(s) acknowledged' if faults else \
+                'nothing to reset'
             return response
         self._estop = False
         self._tripped = False
@@ -1008,7 +1094,8 @@ class DaqBridgeNode(Node):
                  'excitation_epoch': self._exc_tracker.epoch,
                  'excitation_offset_samples': self._offset,
                  'outputs': [{'name': c.name, 'min_V': c.min_V, 'max_V': c.max_V,
-                              'safe_V': c.safe_V} for c in cfg.outputs]}
+                              'safe_V': c.safe_V} for c in cfg.outputs],
+                 'faults': [f.to_dict() for f in self._monitor.faults]}
         extra.update(self._pan)
         if getattr(self._backend, 'name', '') == 'replay':
             extra['replay_bag'] = self._backend.bag
@@ -1061,6 +1148,7 @@ class DaqBridgeNode(Node):
         age = list(self._age_ns)
         med, p99 = _percentiles_us(lat)
         age_med, age_p99 = _percentiles_us(age)
+        values['faults'] = describe(self._monitor.faults) or 'none'
         values.update({'watchdog_tripped': int(self._tripped),
                        'emergency_stop': int(self._estop),
                        'sample_rate_Hz': self._rate if self._config is not None else 0.0,
@@ -1092,6 +1180,11 @@ class DaqBridgeNode(Node):
             level, message = DiagnosticStatus.WARN, 'excitation watchdog tripped: outputs safe'
         if self._estop:
             level, message = DiagnosticStatus.ERROR, 'emergency stop latched: outputs safe'
+        faults = self._monitor.faults
+        if faults:
+            level = DiagnosticStatus.ERROR
+            message = f'{len(faults)} fault(s) latched until ~/reset or ~/start: ' + \
+                describe(faults[:1])
         if self._error or self._state == 'error':
             level, message = DiagnosticStatus.ERROR, self._error or self._last_error
         self._pub_diag.publish(node_diagnostics(self, 'device', level, message, values))

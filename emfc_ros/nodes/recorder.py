@@ -57,6 +57,7 @@ from emfc_ros.core.bag import (
     BagWriter, MessageTypeError, MessageTypes, OfferedQos, QueuedBagWriter)
 from emfc_ros.core.bag.qos import DURABILITY, HISTORY, LIVELINESS, policy_name, RELIABILITY
 from emfc_ros.core.config import unflatten
+from emfc_ros.core.device.faults import faults_from_extra
 from emfc_ros.core.errors import ConfigError
 from emfc_ros.nodes.convert import LATCHED_QOS, node_diagnostics
 from emfc_ros.nodes.params import declare_table, pending_refusals
@@ -64,6 +65,7 @@ from emfc_ros.nodes.spin import node_logger, node_main
 
 EXCLUDED_TOPICS = ('/rosout', '/parameter_events')
 DESCRIPTION_SUFFIX = 'excitation/description'
+STREAM_DESCRIPTION_SUFFIX = '/description'
 STRING_TYPE = 'std_msgs/msg/String'
 
 # name: (default, description with units); 'topics' is declared as a typed string array.
@@ -284,6 +286,7 @@ class RecorderNode(Node):
         self._output: Optional[Path] = None
         self._writer: Optional[QueuedBagWriter] = None
         self._recorded: Dict[str, Tuple[object, int]] = {}
+        self._faults: Dict[tuple, dict] = {}
         self._unrecordable: Dict[str, str] = {}
         self._fetches: Dict[str, _ParameterFetch] = {}
         self._node_parameters: Dict[str, dict] = {}
@@ -382,6 +385,7 @@ class RecorderNode(Node):
         self._recorded = {}
         self._unrecordable = {}
         self._node_parameters, self._unreachable, self._fetches = {}, {}, {}
+        self._faults = {}
         queued.set_custom_data('emfc_ros.version', __version__)
         # Wall time, whatever clock stamps the messages (simulated time starts near 0).
         queued.set_custom_data('emfc_ros.start_time_ns', str(time.time_ns()))
@@ -478,6 +482,10 @@ class RecorderNode(Node):
             def callback(raw, cid=cid):
                 put(cid, clock.now().nanoseconds, raw)
                 self._on_description(raw)
+        elif topic.endswith(STREAM_DESCRIPTION_SUFFIX) and msgtype == STRING_TYPE:
+            def callback(raw, cid=cid, topic=topic):
+                put(cid, clock.now().nanoseconds, raw)
+                self._on_stream_description(topic, raw)
         else:
             def callback(raw, cid=cid):
                 put(cid, clock.now().nanoseconds, raw)
@@ -495,6 +503,30 @@ class RecorderNode(Node):
             return
         self._writer.set_custom_data('emfc_ros.experiment', yaml.safe_dump(
             doc, default_flow_style=False, sort_keys=True))
+
+    def _on_stream_description(self, topic: str, raw: bytes) -> None:
+        """Keep the device faults a stream description reports in the bag's custom data."""
+        if self._writer is None:
+            return
+        try:
+            extra = json.loads(deserialize_message(raw, String).data).get('extra') or {}
+            faults = faults_from_extra(extra)
+        except (ValueError, TypeError, AttributeError):
+            return
+        new = False
+        for fault in faults:
+            key = (topic, fault.epoch, fault.kind, fault.device_index)
+            record = dict(fault.to_dict(), topic=topic)
+            if self._faults.get(key) != record:
+                new = new or key not in self._faults
+                self._faults[key] = record
+        if new:
+            self.get_logger().error(f'{topic} reports device faults: the recording holds data '
+                                    'whose excitation was not applied (bag custom data '
+                                    'emfc_ros.faults)')
+        if faults:
+            self._writer.set_custom_data('emfc_ros.faults', yaml.safe_dump(
+                list(self._faults.values()), sort_keys=False))
 
     def _fetch_parameters(self) -> None:
         me = self.get_fully_qualified_name()
@@ -540,6 +572,17 @@ class RecorderNode(Node):
         """
         return sorted(self._recorded)
 
+    def recorded_faults(self) -> int:
+        """
+        Device faults the recorded stream descriptions reported (for in-process supervisors).
+
+        Returns
+        -------
+        int
+            Distinct faults kept in the bag's custom data ``emfc_ros.faults``.
+        """
+        return len(self._faults)
+
     def written_messages(self) -> Dict[str, int]:
         """
         Messages written to the bag so far, per topic (for in-process supervisors).
@@ -554,6 +597,7 @@ class RecorderNode(Node):
     def _status_dict(self) -> dict:
         status = {'state': self._state, 'output': str(self._output or ''),
                   'error': self._error, 'topics': sorted(self._recorded),
+                  'device_faults': len(self._faults),
                   'unrecordable': dict(self._unrecordable)}
         if self._writer is not None:
             stats = self._writer.stats()
@@ -589,6 +633,11 @@ class RecorderNode(Node):
                 values[f'bytes_B {topic}'] = stats.bytes[topic]
             if stats.dropped:
                 level, message = DiagnosticStatus.WARN, f'{stats.dropped} messages dropped'
+        if self._faults:
+            values['device_faults'] = len(self._faults)
+            level, message = DiagnosticStatus.ERROR, (
+                f'{len(self._faults)} device fault(s) recorded: the bag holds data whose '
+                'excitation was not applied (custom data emfc_ros.faults)')
         if self._state == 'error':
             level, message = DiagnosticStatus.ERROR, self._error
             values['error'] = self._error

@@ -99,10 +99,16 @@ def test_funcgen_start_stop_heartbeat_status_round_trip():
     assert proto.START_RESPONSE.unpack(start.body) == (3, 0xDEADBEEF)
     beat = proto.HEARTBEAT_REQUEST.pack(123456789)
     assert _roundtrip(proto.Message(proto.HEARTBEAT, 2, body=beat)).body == beat
-    reply = proto.HeartbeatReply(123456789, 5000, 3, 77, proto.STATE_RUNNING, True, 12, 1)
-    msg = _roundtrip(proto.Message(proto.HEARTBEAT, 2, proto.KIND_RESPONSE,
-                                   body=proto.encode_heartbeat_reply(reply)))
-    assert msg.is_response and proto.decode_heartbeat_reply(msg.body) == reply
+    for reply in (proto.HeartbeatReply(123456789, 5000, 3, 77, proto.STATE_RUNNING, True, 12, 1,
+                                       4321),
+                  proto.HeartbeatReply(123456789, 5000, 3, 77, proto.STATE_RUNNING, False, 0, 1)):
+        msg = _roundtrip(proto.Message(proto.HEARTBEAT, 2, proto.KIND_RESPONSE,
+                                       body=proto.encode_heartbeat_reply(reply)))
+        assert msg.is_response and proto.decode_heartbeat_reply(msg.body) == reply
+    # A trip record without the flag (or the flag without a record) is malformed.
+    bad = proto.HEARTBEAT_RESPONSE.pack(1, 2, 3, 4, proto.STATE_RUNNING, 0, 0, 0, 17)
+    with pytest.raises(proto.ProtocolError, match='trip index'):
+        proto.decode_heartbeat_reply(bad)
     counters = {name: i * 1000 for i, name in enumerate(proto.DEVICE_COUNTERS)}
     status = proto.StatusReply(3, 77, proto.STATE_CONFIGURED, False, counters,
                                proto.encode_configure(CONFIG))

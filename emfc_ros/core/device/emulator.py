@@ -463,7 +463,7 @@ class DeviceEmulator:
             return proto.OK, proto.encode_heartbeat_reply(proto.HeartbeatReply(
                 echo, dev.index, dev.epoch, self.boot_id, STATE_CODES[dev.state],
                 dev.watchdog_tripped, counters['underrun_samples'],
-                counters['watchdog_trips']))
+                counters['watchdog_trips'], dev.watchdog_trip_index))
         if msg.type == proto.STATUS:
             return proto.OK, proto.encode_status_reply(proto.StatusReply(
                 dev.epoch, self.boot_id, STATE_CODES[dev.state], dev.watchdog_tripped,

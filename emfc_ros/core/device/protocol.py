@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import struct
-from typing import Dict, List, Sequence, Tuple
+from typing import Dict, List, Optional, Sequence, Tuple
 import zlib
 
 import numpy as np
@@ -83,7 +83,9 @@ INPUT_FIXED = struct.Struct('<dd')
 OUTPUT_FIXED = struct.Struct('<ddddd')
 START_RESPONSE = struct.Struct('<II')
 HEARTBEAT_REQUEST = struct.Struct('<Q')
-HEARTBEAT_RESPONSE = struct.Struct('<QQIIBBxxQQ')
+HEARTBEAT_RESPONSE = struct.Struct('<QQIIBBxxQQQ')
+#: ``watchdog_trip_index`` of a HEARTBEAT response when the watchdog holds nothing.
+NO_TRIP_INDEX = 2 ** 64 - 1
 FUNCGEN_COUNT = struct.Struct('<H')
 FUNCGEN_ENTRY = struct.Struct('<BBBBIddddddd')
 STATUS_FIXED = struct.Struct('<IIBBH')
@@ -621,6 +623,9 @@ class HeartbeatReply:
         Samples output at the safe value because the setpoint stream ran dry.
     watchdog_trips : int
         Watchdog trips since boot.
+    watchdog_trip_index : int, optional
+        First sample of this epoch output at the safe values by the latched watchdog (the
+        trip record); None when it holds nothing.
     """
 
     echo_ns: int
@@ -631,6 +636,7 @@ class HeartbeatReply:
     watchdog_tripped: bool
     underrun_samples: int
     watchdog_trips: int
+    watchdog_trip_index: Optional[int] = None
 
 
 def encode_heartbeat_reply(reply: HeartbeatReply) -> bytes:
@@ -649,7 +655,9 @@ def encode_heartbeat_reply(reply: HeartbeatReply) -> bytes:
     """
     return HEARTBEAT_RESPONSE.pack(reply.echo_ns, reply.next_sample_index, reply.epoch,
                                    reply.boot_id, reply.state, int(reply.watchdog_tripped),
-                                   reply.underrun_samples, reply.watchdog_trips)
+                                   reply.underrun_samples, reply.watchdog_trips,
+                                   NO_TRIP_INDEX if reply.watchdog_trip_index is None
+                                   else reply.watchdog_trip_index)
 
 
 def decode_heartbeat_reply(body: bytes) -> HeartbeatReply:
@@ -672,11 +680,16 @@ def decode_heartbeat_reply(body: bytes) -> HeartbeatReply:
         If malformed.
     """
     r = _Reader(body)
-    echo, index, epoch, boot, state, tripped, underruns, trips = r.unpack(HEARTBEAT_RESPONSE)
+    echo, index, epoch, boot, state, tripped, underruns, trips, trip_index = r.unpack(
+        HEARTBEAT_RESPONSE)
     r.end()
     if state not in STATE_NAMES or tripped > 1:
         raise ProtocolError(f'bad heartbeat state {state} or flag {tripped}')
-    return HeartbeatReply(echo, index, epoch, boot, state, bool(tripped), underruns, trips)
+    if (trip_index != NO_TRIP_INDEX) != bool(tripped):
+        raise ProtocolError(f'heartbeat trip index {trip_index} disagrees with the tripped '
+                            f'flag {tripped}')
+    return HeartbeatReply(echo, index, epoch, boot, state, bool(tripped), underruns, trips,
+                          None if trip_index == NO_TRIP_INDEX else trip_index)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -490,6 +490,9 @@ class SimBackend:
                'missing_samples': 0, 'duplicates': 0, 'reordered': 0, 'corrupt': 0, 'late': 0,
                'heartbeat_misses': 0, 'reconnects': 0}
         out.update({f'device_{k}': v for k, v in self.device.all_counters().items()})
+        trip = self.device.watchdog_trip_index
+        out['device_watchdog_tripped'] = int(trip is not None)
+        out['device_watchdog_trip_index'] = -1 if trip is None else int(trip)
         return out
 
     def close(self) -> None:

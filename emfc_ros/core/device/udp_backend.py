@@ -453,6 +453,11 @@ class UdpBackend:
         out['device_underrun_samples'] = hb.underrun_samples if hb else 0
         out['device_watchdog_trips'] = hb.watchdog_trips if hb else 0
         out['device_watchdog_tripped'] = int(hb.watchdog_tripped) if hb else 0
+        trip = hb.watchdog_trip_index if hb else None
+        out['device_watchdog_trip_index'] = -1 if trip is None else int(trip)
+        # Silence of the device (no datagram at all), while it should be running.
+        out['device_silent_ms'] = int(1000.0 * max(0.0, self._clock() - self._last_rx)) \
+            if self._running else 0
         return out
 
     def close(self) -> None:

@@ -264,6 +264,7 @@ def identify_bag(bag_path: Path, options: Optional[Mapping[str, Any]] = None,
     n_excitation = max([int(s['first_sample_index']) + int(s['n_samples']) for s in sections]
                        + ([excitation.first_sample_index + excitation.n_samples]
                           if excitation is not None else []))
+    refuse_faults(bag_path, measurements, ns, offset, n_excitation)
     recording = aligned_channels(measurements, offset, n_excitation if offset else None, ns)
     given = dict(options or {})
     options = merged_options(stored_options(bag_path), given)
@@ -280,6 +281,64 @@ def identify_bag(bag_path: Path, options: Optional[Mapping[str, Any]] = None,
             'plant_settings': settings, 'plant_settings_source': source}
     result.plant_source = source
     return result, info
+
+
+def refuse_faults(bag_path: Path, measurements: Any, namespace: str, offset: int,
+                  n_samples: int) -> None:
+    """
+    Refuse a bag whose device reported that the excitation was not applied as commanded.
+
+    The faults come from the measurement description (``extra.faults``, the daq_bridge's
+    latched faults) and from the bag's custom data ``emfc_ros.faults`` (the recorder keeps
+    every fault a description reported, also after a ``~/reset`` cleared it).
+
+    Parameters
+    ----------
+    bag_path : pathlib.Path
+        The bag folder.
+    measurements : Stream
+        The measurement stream, with its description.
+    namespace : str
+        The streams' namespace.
+    offset : int
+        Device index of experiment sample 0.
+    n_samples : int
+        Samples of the experiment.
+
+    Raises
+    ------
+    DeviceFaultError
+        If a fault touches the experiment's samples or its position is unknown.
+    """
+    from emfc_ros.core.device.faults import describe, Fault, faults_from_extra
+    description = getattr(measurements, 'description', None)
+    faults = []
+    try:
+        if description is not None:
+            faults.extend(faults_from_extra(description.extra))
+        topic = f'{namespace}/measurements/description'
+        for doc in yaml.safe_load(custom_data(bag_path).get('emfc_ros.faults', '')) or []:
+            if isinstance(doc, dict) and doc.get('topic', topic) == topic:
+                faults.append(Fault.from_dict(doc))
+    except (ValueError, yaml.YAMLError) as exc:
+        raise DeviceFaultError(f"the bag's fault record is unreadable ({exc}): the data "
+                               'cannot be trusted') from None
+    unique = list(dict.fromkeys(faults))
+    hits = []
+    for fault in unique:
+        span = fault.experiment_range(offset, n_samples)
+        if span is None or span[1] > span[0]:
+            hits.append(fault)
+    if hits:
+        raise DeviceFaultError(
+            'the device did not apply the excitation as commanded during this experiment, '
+            'so the data do not answer it; repeat the experiment:\n  '
+            + describe(hits, offset, n_samples, measurements.sample_rate_Hz).replace(
+                '\n', '\n  '))
+
+
+class DeviceFaultError(IdentificationError):
+    """The bag records device faults inside the experiment."""
 
 
 def excitation_offset_samples(measurements: Any, excitation: Any = None,

@@ -1,0 +1,343 @@
+"""
+Faults of a device run: events after which the outputs were not what the host commanded.
+
+A fault is latched: once seen it stays until the run is restarted (``~/start``) or the
+user acknowledges it (``~/reset``). The daq_bridge reports each on ``/diagnostics`` as
+ERROR and in its measurement description (``extra.faults``, a list of
+:meth:`Fault.to_dict`); the recorder keeps them in the bag's custom data
+(``emfc_ros.faults``); ``emfc-experiment`` fails the run and the identifier refuses the bag.
+
+Kinds (:data:`KINDS`):
+
+``device_watchdog``
+    The device's own watchdog tripped (the host was silent for longer than its timeout):
+    the outputs were held at their safe values from the device's trip record on, to the end
+    of the epoch.
+``device_underrun``
+    The device ran out of setpoints while streaming (the host wrote them too late): those
+    samples were output at the safe values. The device counts them; where they lie is the
+    host's estimate (the latest possible position).
+``device_lost``
+    No datagram from the device for longer than the device timeout, or the back-end had to
+    reconnect (the stream restarted in a new epoch).
+``excitation_watchdog``
+    The bridge's excitation watchdog drove the outputs safe while excitation samples were
+    still queued, or excitation arrived again after such a trip (the samples between were
+    not applied).
+``emergency_stop``
+    ``~/emergency_stop`` was called.
+``safe_outputs_unconfirmed``
+    The device did not confirm the request that drives the outputs safe.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
+
+KINDS = ('device_watchdog', 'device_underrun', 'device_lost', 'excitation_watchdog',
+         'emergency_stop', 'safe_outputs_unconfirmed')
+
+
+@dataclasses.dataclass(frozen=True)
+class Fault:
+    """
+    One latched fault.
+
+    Attributes
+    ----------
+    kind : str
+        One of :data:`KINDS`.
+    device_index : int or None
+        First device sample (of the epoch) affected; None when unknown.
+    samples : int or None
+        Samples affected from ``device_index`` on; None: to the end of the epoch.
+    message : str
+        What happened, for a person.
+    exact : bool
+        Whether ``device_index`` is the device's own record (True) or the host's estimate.
+    epoch : int
+        The device stream epoch the index counts in.
+    """
+
+    kind: str
+    device_index: Optional[int]
+    samples: Optional[int]
+    message: str
+    exact: bool = False
+    epoch: int = 0
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f'fault kind must be one of {KINDS}, got {self.kind!r}')
+
+    def to_dict(self) -> Dict[str, Any]:
+        """
+        The fault as plain values (JSON and YAML).
+
+        Returns
+        -------
+        dict
+            ``kind``, ``device_index``, ``samples``, ``message``, ``exact``, ``epoch``.
+        """
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, doc: Mapping[str, Any]) -> 'Fault':
+        """
+        Parse :meth:`to_dict`'s output.
+
+        Parameters
+        ----------
+        doc : mapping
+            The values.
+
+        Returns
+        -------
+        Fault
+            The fault.
+
+        Raises
+        ------
+        ValueError
+            If a field is missing or of the wrong type.
+        """
+        try:
+            index = doc.get('device_index')
+            samples = doc.get('samples')
+            return cls(str(doc['kind']), None if index is None else int(index),
+                       None if samples is None else int(samples), str(doc.get('message', '')),
+                       bool(doc.get('exact', False)), int(doc.get('epoch', 0) or 0))
+        except (KeyError, TypeError, AttributeError) as exc:
+            raise ValueError(f'malformed fault record {doc!r}: {exc}') from None
+
+    def experiment_range(self, offset: Optional[int],
+                         total: int) -> Optional[Tuple[int, int]]:
+        """
+        The experiment samples ``[first, end)`` the fault affected.
+
+        Parameters
+        ----------
+        offset : int or None
+            Device index of experiment sample 0 (``excitation_offset_samples``).
+        total : int
+            Samples in the experiment.
+
+        Returns
+        -------
+        tuple of int or None
+            The range clipped to the experiment; None when the position is unknown (no
+            index or no offset). An empty range means the fault fell outside the experiment.
+        """
+        if self.device_index is None or offset is None:
+            return None
+        first = self.device_index - int(offset)
+        end = total if self.samples is None else first + self.samples
+        first, end = max(0, first), min(total, end)
+        return (first, max(first, end))
+
+
+def describe(faults: Sequence[Fault], offset: Optional[int] = None, total: int = 0,
+             sample_rate_Hz: float = 0.0) -> str:
+    """
+    One line per fault, with the experiment samples affected where they are known.
+
+    Parameters
+    ----------
+    faults : sequence of Fault
+        The faults.
+    offset : int, optional
+        Device index of experiment sample 0.
+    total : int
+        Samples in the experiment (0: give device indices only).
+    sample_rate_Hz : float
+        For times in seconds (0: samples only).
+
+    Returns
+    -------
+    str
+        The lines joined with newlines.
+    """
+    lines = []
+    for f in faults:
+        where = ''
+        span = f.experiment_range(offset, total) if total else None
+        if span is not None:
+            first, end = span
+            if end <= first:
+                where = " (outside the experiment's samples)"
+            else:
+                est = '' if f.exact else 'about '
+                where = f'; {est}experiment samples {first} to {end - 1} not applied'
+                if sample_rate_Hz > 0:
+                    where += f' ({first / sample_rate_Hz:.3f} s to {end / sample_rate_Hz:.3f} s)'
+        elif f.device_index is not None:
+            where = f' (device sample {f.device_index} of epoch {f.epoch})'
+        lines.append(f'{f.kind}: {f.message}{where}')
+    return '\n'.join(lines)
+
+
+def faults_from_extra(extra: Mapping[str, Any]) -> List[Fault]:
+    """
+    The faults a measurement description's ``extra`` carries.
+
+    Parameters
+    ----------
+    extra : mapping
+        The description's ``extra``.
+
+    Returns
+    -------
+    list of Fault
+        Empty when it carries none.
+
+    Raises
+    ------
+    ValueError
+        If the record is malformed.
+    """
+    raw = extra.get('faults') or []
+    if not isinstance(raw, list):
+        raise ValueError(f'extra.faults must be a list, got {type(raw).__name__}')
+    return [Fault.from_dict(doc) for doc in raw]
+
+
+class FaultMonitor:
+    """
+    Turn a back-end's health into latched faults.
+
+    The cumulative device counters are compared with their values at the start of the run
+    (:meth:`reset`), so faults of an earlier run do not count again.
+    """
+
+    def __init__(self) -> None:
+        self._faults: List[Fault] = []
+        self._base: Dict[str, int] = {}
+        self._epoch = 0
+
+    @property
+    def faults(self) -> Tuple[Fault, ...]:
+        """The latched faults, oldest first."""
+        return tuple(self._faults)
+
+    def has(self, kind: str) -> bool:
+        """
+        Whether a fault of this kind is latched.
+
+        Parameters
+        ----------
+        kind : str
+            One of :data:`KINDS`.
+
+        Returns
+        -------
+        bool
+            True if latched.
+        """
+        return any(f.kind == kind for f in self._faults)
+
+    def reset(self, health: Optional[Mapping[str, Any]] = None, epoch: int = 0) -> None:
+        """
+        Forget the latched faults; take the counters' baseline from ``health``.
+
+        Parameters
+        ----------
+        health : mapping, optional
+            The back-end's health now.
+        epoch : int
+            The stream epoch of the run.
+        """
+        self._faults = []
+        health = health or {}
+        self._base = {k: _int(health.get(k)) for k in ('device_underrun_samples',
+                                                       'device_watchdog_trips', 'reconnects')}
+        self._epoch = int(epoch or 0)
+
+    def add(self, kind: str, device_index: Optional[int], samples: Optional[int],
+            message: str, exact: bool = False) -> Fault:
+        """
+        Latch a fault the host saw itself.
+
+        Parameters
+        ----------
+        kind : str
+            One of :data:`KINDS`.
+        device_index : int or None
+            First device sample affected.
+        samples : int or None
+            Samples affected (None: to the end of the epoch).
+        message : str
+            What happened.
+        exact : bool
+            Whether the index is exact.
+
+        Returns
+        -------
+        Fault
+            The latched fault.
+        """
+        fault = Fault(kind, device_index, samples, message, exact, self._epoch)
+        self._faults.append(fault)
+        return fault
+
+    def observe(self, health: Mapping[str, Any], device_index_now: int,
+                received_end: int, device_timeout_s: float) -> List[Fault]:
+        """
+        Compare the back-end's health with the run's baseline; latch what is new.
+
+        Parameters
+        ----------
+        health : mapping
+            The back-end's health (``device_watchdog_tripped``,
+            ``device_watchdog_trip_index``, ``device_underrun_samples``,
+            ``device_silent_ms``, ``reconnects``; missing keys mean nothing to see).
+        device_index_now : int
+            The host's estimate of the device's sample index now.
+        received_end : int
+            End index of the last measurement block received.
+        device_timeout_s : float
+            Silence after which the device counts as lost [s].
+
+        Returns
+        -------
+        list of Fault
+            The faults latched by this call.
+        """
+        new: List[Fault] = []
+        if _int(health.get('device_watchdog_tripped')) and not self.has('device_watchdog'):
+            trip = _int(health.get('device_watchdog_trip_index'), -1)
+            exact = trip >= 0
+            new.append(self.add(
+                'device_watchdog', trip if exact else device_index_now, None,
+                "the device's watchdog tripped (the host was silent for longer than its "
+                'timeout): outputs held at their safe values to the end of the run', exact))
+        under = _int(health.get('device_underrun_samples')) - \
+            self._base.get('device_underrun_samples', 0)
+        if under > 0:
+            old = next((f for f in self._faults if f.kind == 'device_underrun'), None)
+            if old is None or (old.samples or 0) < under:
+                fault = Fault('device_underrun', max(0, device_index_now - under), under,
+                              f'the device ran out of setpoints for {under} samples (the host '
+                              'wrote them too late): output at the safe values', False,
+                              self._epoch)
+                if old is None:
+                    self._faults.append(fault)
+                    new.append(fault)
+                else:
+                    self._faults[self._faults.index(old)] = fault
+        silent_s = _int(health.get('device_silent_ms')) * 1e-3
+        reconnects = _int(health.get('reconnects')) - self._base.get('reconnects', 0)
+        if (silent_s > device_timeout_s or reconnects > 0) and not self.has('device_lost'):
+            what = (f'no datagram from the device for {silent_s:.2f} s (timeout '
+                    f'{device_timeout_s:g} s)' if silent_s > device_timeout_s
+                    else f'the device was lost and reconnected ({reconnects} time(s)): its '
+                    'stream restarted in a new epoch')
+            new.append(self.add('device_lost', received_end, None, what))
+        return new
+
+
+def _int(value: Any, default: int = 0) -> int:
+    try:
+        return int(value)
+    except (TypeError, ValueError):
+        return default
