@@ -119,8 +119,8 @@ PARAMETERS: Dict[str, Tuple[Any, str]] = {
     'udp.bind_port': (0, 'local UDP port, 0: any free one'),
     'udp.heartbeat_period_s': (0.1, 'heartbeat period [s], (0, 60]'),
     'udp.request_timeout_s': (0.2, 'control request timeout before a retry [s], (0, 60]'),
-    'udp.device_timeout_s': (1.0, 'silence after which the device is reconnected [s], '
-                                  '(0, 60]'),
+    'udp.device_timeout_s': (0.5, 'silence after which the device counts as lost (a '
+                                  'latched fault) and is reconnected [s], (0, 60]'),
     'udp.reorder_window': (8, 'frames the reorder buffer spans before declaring a gap'),
     'udp.reorder_timeout_s': (0.2, 'longest wait for a missing frame [s], (0, 60]'),
     'udp.setpoint_format': ('float64', "setpoint frame format: 'float64' or 'int16'"),
@@ -930,7 +930,7 @@ class DaqBridgeNode(Node):
             return
         new = self._monitor.observe(self._health(), self._device_index_now(),
                                     self._last_end or 0,
-                                    float(getattr(self._backend, 'device_timeout_s', 1.0)))
+                                    float(getattr(self._backend, 'device_timeout_s', 0.5)))
         self._latch(new)
         if self._tripped or self._estop:
             return

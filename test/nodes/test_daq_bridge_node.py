@@ -7,10 +7,11 @@ bag recorded in the test. Published blocks are compared with the device's own re
 sample index.
 """
 
+import json
 import socket
 import time
 
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
 import pytest
 import rclpy
@@ -76,6 +77,21 @@ class Probe:
                     if key in values:
                         return values[key]
         return None
+
+    def level(self):
+        """The level of the bridge's latest diagnostic status."""
+        for msg in reversed(self.diagnostics):
+            for status in msg.status:
+                if status.name.startswith('daq_bridge'):
+                    return status.level
+        return None
+
+    def faults(self):
+        """Fault kinds in the latest measurement description."""
+        if not self.descriptions:
+            return None
+        extra = json.loads(self.descriptions[-1].data)['extra']
+        return [f['kind'] for f in extra['faults']]
 
     def call(self, executor, name):
         client = self.clients[name]
@@ -250,6 +266,12 @@ def test_watchdog_drives_outputs_safe_within_one_block_and_setpoints_are_clamped
     values = bridge.diagnostic_values()
     assert values['clamped_samples'] == 20 * 500  # every coil sample, no load sample
     assert values['watchdog_tripped'] == 1
+    # Excitation was still queued at the trip: not applied, a latched fault.
+    (fault,) = bridge.faults()
+    assert fault.kind == 'excitation_watchdog' and 0 < fault.samples < 10000
+    assert ros_harness.spin_until(
+        executor, lambda: probe.faults() == ['excitation_watchdog']
+        and probe.level() == DiagnosticStatus.ERROR, TIMEOUT_S)
     assert values['excitation_blocks'] == 20 and values['excitation_gaps'] == 0
     assert probe.acks and probe.acks == sorted(probe.acks)
     # New excitation re-arms the stream.
@@ -258,6 +280,14 @@ def test_watchdog_drives_outputs_safe_within_one_block_and_setpoints_are_clamped
     assert ros_harness.spin_until(
         executor, lambda: np.any(np.abs(applied(probe)[1] - 0.25) <= DAC_LSB_V), TIMEOUT_S)
     assert bridge.diagnostic_values()['watchdog_tripped'] == 0
+    # The same stream went on after the trip: the samples between were not applied.
+    assert [f.kind for f in bridge.faults()] == ['excitation_watchdog'] * 2
+    assert bridge.faults()[1].device_index == trip
+    # ~/reset acknowledges the faults; the level returns to what the counters say.
+    assert probe.call(executor, 'reset').success
+    assert ros_harness.spin_until(
+        executor, lambda: probe.faults() == [] and probe.level() != DiagnosticStatus.ERROR,
+        TIMEOUT_S)
 
 
 def test_emergency_stop_acts_within_one_block_and_latches_until_reset(
@@ -285,6 +315,11 @@ def test_emergency_stop_acts_within_one_block_and_latches_until_reset(
         TIMEOUT_S)
     assert ros_harness.spin_until(executor, lambda: probe.diag('emergency_stop') == '1',
                                   TIMEOUT_S)
+    assert [f.kind for f in bridge.faults()] == ['emergency_stop']
+    assert bridge.faults()[0].device_index == stop
+    assert ros_harness.spin_until(
+        executor, lambda: probe.faults() == ['emergency_stop']
+        and probe.level() == DiagnosticStatus.ERROR, TIMEOUT_S)
     n = len(probe.blocks)
     assert ros_harness.spin_until(executor, lambda: len(probe.blocks) >= n + 4, TIMEOUT_S)
     assert all(np.all(b[2][0] == 0.0) for b in probe.blocks[n:])
@@ -292,6 +327,8 @@ def test_emergency_stop_acts_within_one_block_and_latches_until_reset(
     assert ros_harness.spin_until(
         executor, lambda: np.abs(probe.blocks[-1][2][0, -1] - 0.75) <= DAC_LSB_V, TIMEOUT_S)
     assert bridge.diagnostic_values()['emergency_stop'] == 0
+    assert bridge.faults() == ()
+    assert ros_harness.spin_until(executor, lambda: probe.faults() == [], TIMEOUT_S)
 
 
 def test_stop_and_start_services_restart_the_stream_in_a_new_epoch(
@@ -325,6 +362,8 @@ def test_a_device_that_comes_back_is_reconnected(executor, ros_context):
         assert ros_harness.spin_until(
             executor, lambda: sum(1 for b in probe.blocks if b[1] > epoch) >= 3, TIMEOUT_S)
         assert bridge.diagnostic_values()['reconnects'] >= 1
+        # A lost device is a fault, latched across the reconnect.
+        assert [f.kind for f in bridge.faults()] == ['device_lost']
         new = [b for b in probe.blocks if b[1] > epoch]
         assert new[0][0] == 0
         record = emulator_record(emu)

@@ -239,7 +239,7 @@ class UdpBackend:
     def __init__(self, device_address: Union[str, Tuple[str, int]] = ('127.0.0.1', 5005), *,
                  bind_address: Union[str, Tuple[str, int]] = ('127.0.0.1', 0),
                  heartbeat_period_s: float = 0.1, request_timeout_s: float = 0.2,
-                 retries: int = 4, device_timeout_s: float = 1.0, reorder_window: int = 8,
+                 retries: int = 4, device_timeout_s: float = 0.5, reorder_window: int = 8,
                  reorder_timeout_s: float = 0.2, max_queued_blocks: int = 10000,
                  setpoint_format: str = 'float64', auto_reconnect: bool = True,
                  clock: Callable[[], float] = time.monotonic) -> None:
