@@ -39,6 +39,11 @@ HEADER_LENGTH = len(HEADER_FIELDS)
 CHANNEL_LABEL = 'channel'
 SAMPLE_LABEL = 'sample'
 MAX_EXACT_INDEX = 2 ** 53
+#: Most samples per channel in one block (the nodes' ``block_size`` limit too): a larger
+#: block is refused before anything is copied or simulated.
+MAX_BLOCK_SAMPLES = 1_000_000
+#: Most channels in one block.
+MAX_BLOCK_CHANNELS = 256
 
 
 @dataclasses.dataclass(frozen=True)
@@ -336,6 +341,9 @@ def unpack(dims: Sequence[Tuple[str, int, int]], data_offset: int, data: Any,
                          f'{n_ch} x {n_s}')
     if data_offset != HEADER_LENGTH:
         raise BlockError(f'data_offset {data_offset} is not the header length {HEADER_LENGTH}')
+    if not 0 <= n_s <= MAX_BLOCK_SAMPLES or not 0 <= n_ch <= MAX_BLOCK_CHANNELS:
+        raise BlockError(f'block of {n_ch} channels x {n_s} samples exceeds the maximum '
+                         f'{MAX_BLOCK_CHANNELS} x {MAX_BLOCK_SAMPLES}')
     if expected_channels is not None and n_ch != expected_channels:
         raise BlockError(f'block has {n_ch} channels, expected {expected_channels}')
     try:

@@ -8,6 +8,13 @@ filled with the safe values (and counted, never hidden), late, duplicate and ove
 blocks are dropped and counted, and reading more than is queued pads with the safe values
 (an underrun, counted). A gap too large to fill resynchronises the queue at the new block:
 ``head_index`` jumps, so whoever stamps output with it shows the same gap.
+
+Blocks that cannot be setpoints are refused with :class:`BlockError` (the caller counts it
+with the reason): non-finite values, and a block more than ``max_gap_samples`` ahead of the
+stream in the same epoch (a far-future index, by a bug or a forged message). Such a block
+does not move the stream: later valid blocks go on as before. A sender that really jumped
+ahead is followed once :data:`RESYNC_BLOCKS` contiguous blocks confirm the new position
+(the first of them are refused; the queue resynchronises at the confirming block).
 """
 
 from __future__ import annotations
@@ -22,6 +29,58 @@ from emfc_ros.core.errors import BlockError
 
 #: How a block the queue already has shows up (dropped and counted): a re-sent block.
 DROPPED = frozenset({Continuity.DUPLICATE, Continuity.REORDERED, Continuity.OVERLAP})
+#: Contiguous far-ahead blocks that confirm a jump of the stream (the last one is taken).
+RESYNC_BLOCKS = 3
+
+
+class JumpGuard:
+    """
+    Refuse a block far ahead of its stream until contiguous blocks confirm the jump.
+
+    Parameters
+    ----------
+    max_gap_samples : int
+        Largest jump ahead within an epoch that passes at once.
+    """
+
+    def __init__(self, max_gap_samples: int = 1_000_000) -> None:
+        self.max_gap_samples = int(max_gap_samples)
+        self.refused = 0
+        self._candidate: Tuple[int, int, int] = (-1, -1, 0)   # next index, epoch, count
+
+    def check(self, tracker: SequenceTracker, block: Block) -> None:
+        """
+        Pass the block, or refuse it (before ``tracker`` sees it).
+
+        Parameters
+        ----------
+        tracker : SequenceTracker
+            The stream's tracker (its expected index and epoch).
+        block : Block
+            The incoming block.
+
+        Raises
+        ------
+        BlockError
+            If the block is a far-future one not yet confirmed.
+        """
+        expected = tracker.expected
+        first = block.first_sample_index
+        if expected is None or block.epoch != tracker.epoch or \
+                first - expected <= self.max_gap_samples:
+            self._candidate = (-1, -1, 0)
+            return
+        nxt, epoch, count = self._candidate
+        count = count + 1 if (first, block.epoch) == (nxt, epoch) else 1
+        self._candidate = (first + block.n_samples, block.epoch, count)
+        if count >= RESYNC_BLOCKS:
+            self._candidate = (-1, -1, 0)
+            return
+        self.refused += 1
+        raise BlockError(f'block at index {first} is {first - expected} samples ahead of the '
+                         f'stream (more than {self.max_gap_samples}): refused; the stream '
+                         f'goes on at {expected} ({RESYNC_BLOCKS} contiguous blocks there '
+                         'would move it)')
 
 
 class ExcitationQueue:
@@ -34,9 +93,15 @@ class ExcitationQueue:
         Per-channel value used for gaps and underruns (for example 0 V).
     max_samples : int
         Most samples held; pushing beyond it drops the block (counted as overflow).
+    max_gap_samples : int
+        Largest jump ahead within an epoch taken at once; a block further ahead is refused
+        until :data:`RESYNC_BLOCKS` contiguous blocks confirm it.
     """
 
-    def __init__(self, safe_values: Sequence[float], max_samples: int = 10_000_000) -> None:
+    def __init__(self, safe_values: Sequence[float], max_samples: int = 10_000_000,
+                 max_gap_samples: int = 1_000_000) -> None:
+        self.guard = JumpGuard(max_gap_samples)
+        self.non_finite_blocks = 0
         self.safe = np.asarray(safe_values, dtype=np.float64).reshape(-1, 1)
         self.n_channels = int(self.safe.shape[0])
         self.max_samples = int(max_samples)
@@ -87,6 +152,11 @@ class ExcitationQueue:
         if block.samples.shape[0] != self.n_channels:
             raise BlockError(f'excitation block has {block.samples.shape[0]} channels, '
                              f'expected {self.n_channels}')
+        if not np.all(np.isfinite(block.samples)):
+            self.non_finite_blocks += 1
+            raise BlockError(f'excitation block at index {block.first_sample_index} holds NaN '
+                             'or infinite values')
+        self.guard.check(self.tracker, block)
         expected = self.tracker.expected
         kind = self.tracker.observe(block.first_sample_index, block.n_samples, block.epoch)
         if kind in (Continuity.FIRST, Continuity.RESTART):
@@ -167,7 +237,8 @@ class ExcitationQueue:
         Returns
         -------
         dict
-            Tracker counters plus gap-filled, underrun, dropped and overflow counts.
+            Tracker counters plus gap-filled, underrun, dropped, overflow, far-future and
+            non-finite counts.
         """
         out = self.tracker.counters()
         out.update({'queued_samples': self._queued,
@@ -175,5 +246,7 @@ class ExcitationQueue:
                     'underrun_samples': self.underrun_samples,
                     'dropped_blocks': self.dropped_blocks,
                     'overflow_blocks': self.overflow_blocks, 'resyncs': self.resyncs,
-                    'resync_dropped_samples': self.resync_dropped_samples})
+                    'resync_dropped_samples': self.resync_dropped_samples,
+                    'far_future_blocks': self.guard.refused,
+                    'non_finite_blocks': self.non_finite_blocks})
         return out

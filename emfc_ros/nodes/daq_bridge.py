@@ -53,12 +53,12 @@ from emfc_ros.core.device.faults import describe, Fault, FaultMonitor
 from emfc_ros.core.device.function_generator import GeneratorSpec, make_signal
 from emfc_ros.core.device.sim_backend import load_parameters
 from emfc_ros.core.errors import BlockError, ConfigError
-from emfc_ros.core.excitation_queue import DROPPED, ExcitationQueue
+from emfc_ros.core.excitation_queue import DROPPED, ExcitationQueue, JumpGuard
 from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
     node_diagnostics, steady_clock, subscribe_device_inputs, subscribe_excitation)
-from emfc_ros.nodes.params import declare_table
+from emfc_ros.nodes.params import declare_table, refuse_unknown
 from emfc_ros.nodes.spin import node_main
 
 BACKEND_NAMES = ('sim', 'udp', 'replay')
@@ -263,6 +263,7 @@ class DaqBridgeNode(Node):
                    for field, entry in FUNCGEN_FIELDS.items()}
         refused += declare_table(self, funcgen, {
             name: (2, 31) for name in funcgen if name.endswith('.prbs_order')})
+        refused += refuse_unknown(self, [*PARAMETERS, *funcgen])
         self._runtime: Dict[str, float] = {}
         for name in RUNTIME:
             try:
@@ -561,6 +562,7 @@ class DaqBridgeNode(Node):
         self._write_index: Optional[int] = None
         self._offset: Optional[int] = None
         self._exc_tracker = SequenceTracker()
+        self._jump_guard = JumpGuard()
         self._exc_received_end = 0
         self._queue = ExcitationQueue(self._safe if self._config is not None else [0.0])
         self._acked = -1
@@ -806,6 +808,11 @@ class DaqBridgeNode(Node):
             np.clip(samples, self._lo, self._hi, out=samples)
         remap = False
         with self._lock:
+            try:
+                self._jump_guard.check(self._exc_tracker, block)
+            except BlockError as exc:
+                self._reject(str(exc))
+                return
             kind = self._exc_tracker.observe(block.first_sample_index, block.n_samples,
                                              block.epoch)
             if kind in DROPPED:

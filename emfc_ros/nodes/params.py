@@ -154,6 +154,92 @@ def declare_table(node: Node, table: Mapping[str, Sequence],
     return problems
 
 
+#: Parameters every rclpy node has (or takes from the command line) besides its table.
+ROS_PARAMETERS = ('use_sim_time', 'start_type_description_service')
+
+
+def refuse_unknown(node: Node, known: Iterable[str] = ()) -> List[str]:
+    """
+    Refuse start-up values of parameters the node does not have (a typo is not ignored).
+
+    rclpy drops an override whose name was never declared without a word; a user who
+    typed ``-p smaple_rate_Hz:=20000.0`` would run at the default. Call this after every
+    declaration: each unknown name is logged as an error and returned, and it blocks the
+    node's work like a refused value (:func:`pending_refusals`) until the node is restarted.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node, with all its parameters declared.
+    known : iterable of str, optional
+        Names the node has (prefixes ending in ``.`` match a group). A node that declares
+        parameters from its overrides (``allow_undeclared_parameters``) must list them all;
+        for the others, every declared parameter counts as known.
+
+    Returns
+    -------
+    list of str
+        One message per unknown name.
+    """
+    overrides = getattr(node, '_parameter_overrides', {})
+    known = list(known)
+    prefixes = tuple(k for k in known if k.endswith('.')) + ('qos_overrides.',)
+    names = set(known) | set(ROS_PARAMETERS)
+    # A node that declares its overrides itself has them all: only the list says which exist.
+    declared_counts = not getattr(node, '_allow_undeclared_parameters', False)
+    problems = []
+    refused = _refusals(node)
+    for name in sorted(overrides):
+        if name in names or name.startswith(prefixes) or \
+                (declared_counts and node.has_parameter(name)):
+            continue
+        reason = (f'parameter {name}: unknown to {node.get_name()} (a typo?); the start-up '
+                  f'value {_short(overrides[name].value)} is not used; restart the node '
+                  'without it (`--help` lists the parameters)')
+        node.get_logger().error(reason)
+        problems.append(reason)
+        refused[name] = reason
+    return problems
+
+
+def refuse_choice(node: Node, name: str, choices: Sequence[str]) -> List[str]:
+    """
+    Refuse a start-up value of a string parameter outside its choices (default kept).
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node, with ``name`` declared.
+    name : str
+        The parameter.
+    choices : sequence of str
+        The accepted values, the default first.
+
+    Returns
+    -------
+    list of str
+        The message, if refused (also logged and blocking like :func:`pending_refusals`).
+    """
+    value = node.get_parameter(name).value
+    if value in choices:
+        return []
+    desc = node.describe_parameter(name)
+    default = choices[0]            # the default comes first, by this module's convention
+    read_only = desc.read_only
+    if read_only:
+        desc.read_only = False
+        node.set_descriptor(name, desc)
+    node.set_parameters([Parameter(name, value=default)])
+    if read_only:
+        desc.read_only = True
+        node.set_descriptor(name, desc)
+    reason = (f'parameter {name}: start-up value {_short(value)} refused: it must be one of '
+              f'{", ".join(choices)}; the parameter keeps its default {default}')
+    node.get_logger().error(reason)
+    _refusals(node)[name] = reason
+    return [reason]
+
+
 def pending_refusals(node: Node) -> str:
     """
     The refused start-up values of a node that no valid value has replaced yet, or ''.

@@ -81,7 +81,7 @@ from emfc_ros.core.sim.state_rate import StateRateLimiter
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
     node_diagnostics, steady_clock, subscribe_device_inputs, subscribe_excitation)
-from emfc_ros.nodes.params import declare_table
+from emfc_ros.nodes.params import declare_table, refuse_unknown
 from emfc_ros.nodes.spin import node_main
 
 DEFAULT_BALANCE = 'balance_default.yaml'
@@ -155,6 +155,7 @@ PARAMETERS = {
 CONTROL_PREFIX = 'control.'
 #: Inclusive limits of the numeric parameters (descriptors; ``ros2 param describe``).
 LIMITS = {'block_size': (1, 1_000_000), 'seed': (0, 2 ** 63 - 1), 'substeps': (0, 64),
+          'sample_rate_Hz': (1.0, 10.0e6),
           'load_mass_kg': (0.0, 2.0), 'command_delay_periods': (0, 1),
           'min_subscribers': (0, 100), 'max_state_wall_rate_Hz': (0.0, 1.0e6)}
 #: Parameters fixed at start-up (``state_rate_Hz`` too in lockstep mode: refused then).
@@ -206,6 +207,7 @@ class PlantSimulatorNode(Node):
         super().__init__('plant_simulator', allow_undeclared_parameters=True,
                          automatically_declare_parameters_from_overrides=True, **kwargs)
         refused = declare_table(self, PARAMETERS, LIMITS, READ_ONLY)
+        refused += refuse_unknown(self, [*PARAMETERS, 'balance.'])
         self._error = ''
         self._rate = float(self._param('sample_rate_Hz'))
         self._mode = str(self._param('time_mode'))

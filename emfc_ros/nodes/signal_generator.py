@@ -42,7 +42,8 @@ from emfc_ros.core.signals import Experiment, experiment_from_config, load_exper
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS,
     node_diagnostics)
-from emfc_ros.nodes.params import declare_table, pending_refusals
+from emfc_ros.nodes.params import (declare_table, pending_refusals, refuse_choice,
+                                   refuse_unknown)
 from emfc_ros.nodes.spin import node_main
 
 DEFAULT_EXPERIMENT = 'identification_trajectory.yaml'
@@ -104,6 +105,8 @@ class SignalGeneratorNode(Node):
         super().__init__('signal_generator', allow_undeclared_parameters=True,
                          automatically_declare_parameters_from_overrides=True, **kwargs)
         declare_table(self, PARAMETERS, LIMITS)
+        refuse_unknown(self, [*PARAMETERS, 'experiment.'])
+        refuse_choice(self, 'pacing', PACING)       # blocks ~/arm until set (pending_refusals)
         self._state = 'idle'
         self._error = ''
         self._experiment: Optional[Experiment] = None

@@ -39,6 +39,9 @@ def test_layout_is_channel_major():
     ([('channel', 2, 5), ('sample', 3, 3)], 3, 9, 'strides'),
     ([('channel', 2, 6), ('sample', 3, 3)], 0, 9, 'data_offset'),
     ([('channel', 2, 6), ('sample', 3, 3)], 3, 8, 'needs 9'),
+    # Oversized: refused from the layout, before the data are looked at.
+    ([('channel', 2, 2 * 5_000_000), ('sample', 5_000_000, 5_000_000)], 3, 9, 'maximum'),
+    ([('channel', 300, 300), ('sample', 1, 1)], 3, 9, 'maximum'),
 ])
 def test_malformed_layouts_are_refused_with_the_reason(dims, offset, size, match):
     data = np.zeros(size)

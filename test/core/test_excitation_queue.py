@@ -78,7 +78,7 @@ def test_wrong_channel_count_and_overflow():
 
 
 def test_a_gap_too_large_to_fill_resynchronises_visibly():
-    q = ExcitationQueue([0.0, 0.0], max_samples=100)
+    q = ExcitationQueue([0.0, 0.0], max_samples=100, max_gap_samples=10 ** 10)
     q.push(_block(0, 10))
     assert q.push(_block(10 ** 9, 10)) is Continuity.GAP
     assert q.head_index == 10 ** 9 and q.queued == 10
@@ -87,3 +87,33 @@ def test_a_gap_too_large_to_fill_resynchronises_visibly():
     c = q.counters()
     assert (c['resyncs'], c['resync_dropped_samples'], c['missing_samples']) == (
         1, 10, 10 ** 9 - 10)
+
+
+def test_a_far_future_block_is_refused_and_does_not_block_the_stream():
+    """One block at 2**52 (a bug or a forged message) must not swallow the stream."""
+    q = ExcitationQueue([0.0, 0.0])
+    q.push(_block(0, 10))
+    with pytest.raises(BlockError, match='ahead of the stream'):
+        q.push(_block(2 ** 52, 10))
+    assert q.push(_block(10, 10)) is Continuity.CONTIGUOUS
+    assert q.queued == 20 and q.counters()['far_future_blocks'] == 1
+    # A sender that really jumped is followed once three contiguous blocks confirm it.
+    far = 20_000_000                 # beyond max_samples: resynchronised, not filled
+    for k in range(2):
+        with pytest.raises(BlockError):
+            q.push(_block(far + 10 * k, 10))
+    assert q.push(_block(far + 20, 10)) is Continuity.GAP
+    assert q.head_index == far + 20 and q.queued == 10
+    c = q.counters()
+    assert (c['far_future_blocks'], c['resyncs']) == (3, 1)
+
+
+def test_non_finite_setpoints_are_refused():
+    q = ExcitationQueue([0.0, 0.0])
+    bad = _block(0, 10)
+    samples = np.array(bad.samples)
+    samples[1, 3] = np.nan
+    with pytest.raises(BlockError, match='NaN or infinite'):
+        q.push(Block(0, bad.sample_rate_Hz, bad.epoch, samples))
+    assert q.queued == 0 and q.counters()['non_finite_blocks'] == 1
+    assert q.push(_block(0, 10)) is Continuity.FIRST

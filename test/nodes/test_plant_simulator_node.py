@@ -173,13 +173,25 @@ def test_bad_excitation_is_counted_and_the_node_keeps_going(executor, ros_contex
            block_to_msg(0, 5000.0, 1, np.zeros((2, 10)))]      # wrong sample rate
     broken = block_to_msg(0, RATE, 1, np.zeros((2, 10)))
     broken.layout.data_offset = 0                              # breaks the convention
-    for msg in bad + [broken]:
+    huge = block_to_msg(0, RATE, 1, np.zeros((2, 10)))
+    huge.layout.dim[1].size = huge.layout.dim[1].stride = 5_000_000   # claims 2 x 5e6
+    huge.layout.dim[0].stride = 10_000_000
+    for msg in bad + [broken, huge]:
         pub.publish(msg)
     pub.publish(block_to_msg(0, RATE, 1, np.zeros((2, 100))))
     assert ros_harness.spin_until(executor, lambda: probe.samples() >= 100, TIMEOUT_S)
+    # Non-finite setpoints and a far-future index (2**52) are refused; the stream goes on.
+    nan = np.zeros((2, 100))
+    nan[0, 50] = np.nan
+    pub.publish(block_to_msg(2 ** 52, RATE, 1, np.zeros((2, 100))))
+    pub.publish(block_to_msg(100, RATE, 1, nan))
+    pub.publish(block_to_msg(100, RATE, 1, np.full((2, 100), np.inf)))
+    pub.publish(block_to_msg(100, RATE, 1, np.zeros((2, 100))))
+    assert ros_harness.spin_until(executor, lambda: probe.samples() >= 200, TIMEOUT_S)
     assert ros_harness.spin_until(
-        executor, lambda: probe.diag_value('malformed_messages') == '3', TIMEOUT_S)
-    assert probe.blocks['measurements'][0][0] == 0
+        executor, lambda: probe.diag_value('malformed_messages') == '7', TIMEOUT_S)
+    assert [b[0] for b in probe.blocks['measurements']] == [0, 100]
+    assert 'NaN or infinite' in probe.diag_value('last_error')
 
 
 def test_a_block_sent_again_is_dropped_and_acknowledged_again(executor, ros_context):

@@ -271,6 +271,27 @@ def test_refused_startup_value_keeps_node_running(name, value, needle, executor,
     assert proc.stop() == 0, proc.output()
 
 
+@pytest.mark.parametrize('name', ['plant_simulator', 'daq_bridge', 'signal_generator'])
+def test_an_unknown_parameter_name_is_refused_not_ignored(name, executor, ros_context,
+                                                          processes):
+    probe = RosoutProbe(ros_context)
+    executor.add_node(probe.node)
+    proc = processes.start(ros_harness.node_executable(name) + [
+        '--ros-args', '-r', '__ns:=/conv', '-p', 'smaple_rate_Hz:=20000.0'])
+
+    def refused():
+        return [m for m in probe.lines(f'conv.{name}', Log.ERROR)
+                if 'smaple_rate_Hz' in m and 'unknown' in m]
+
+    assert ros_harness.spin_until(executor, refused, START_TIMEOUT_S), proc.output()
+    assert ros_harness.spin_until(
+        executor, lambda: any(s.level == DiagnosticStatus.ERROR and 'smaple_rate_Hz' in s.message
+                              for s in probe.status_of(name)), TIMEOUT_S), \
+        [(s.name, s.message) for s in probe.diagnostics.values()]
+    assert proc.alive()
+    assert proc.stop() == 0, proc.output()
+
+
 def test_refused_startup_value_blocks_the_start_until_replaced(executor, ros_context):
     from emfc_ros.nodes.signal_generator import SignalGeneratorNode
     node = SignalGeneratorNode(context=ros_context, namespace='/conv', parameter_overrides=[

@@ -124,6 +124,13 @@ class OutputChannel:
                                     f'{self.min_V}, {self.safe_V}, {self.max_V}')
         if self.scale == 0.0:
             raise DeviceConfigError(f'scale of {self.name} must not be 0')
+        # The DAC spans 65536 codes: limits outside that range would clamp nothing.
+        span = 32768.0 * abs(self.scale)
+        low, high = self.offset - span, self.offset + span
+        if self.min_V < low - 1e-12 or self.max_V > high + 1e-12:
+            raise DeviceConfigError(f'{self.name}: limits [{self.min_V}, {self.max_V}] V lie '
+                                    f'outside the DAC range [{low:g}, {high:g}] V (scale '
+                                    f'{self.scale:g} V per code, offset {self.offset:g} V)')
 
 
 @dataclasses.dataclass(frozen=True)

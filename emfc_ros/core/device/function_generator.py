@@ -24,6 +24,9 @@ from emfc_ros.core.signals import Chirp, Prbs, Signal, Sine
 WAVEFORMS = ('off', 'sine', 'chirp', 'prbs', 'constant')
 #: Chirp frequency laws in protocol code order.
 CHIRP_METHODS = ('linear', 'logarithmic')
+#: Largest |gain * amplitude_V| and |offset_V| a generator accepts [V]: ten times the usual
+#: +/-10 V output range, to refuse values that can only be typing errors.
+MAX_GENERATOR_V = 100.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -83,6 +86,12 @@ class GeneratorSpec:
             if isinstance(value, bool) or not isinstance(value, (int, float)) or \
                     not math.isfinite(value):
                 raise DeviceConfigError(f'{name} must be a finite number, got {value!r}')
+        if abs(self.gain * self.amplitude_V) > MAX_GENERATOR_V or \
+                abs(self.offset_V) > MAX_GENERATOR_V:
+            raise DeviceConfigError(
+                f'gain * amplitude_V ({self.gain * self.amplitude_V:g} V) and offset_V '
+                f'({self.offset_V:g} V) must be within +/-{MAX_GENERATOR_V:g} V (a sanity '
+                'bound; the outputs are clamped to their limits anyway)')
 
     @property
     def active(self) -> bool:
