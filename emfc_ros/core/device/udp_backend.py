@@ -34,13 +34,17 @@ from emfc_ros.core.device.errors import (DeviceConfigError, DeviceError, DeviceR
                                          DeviceTimeoutError, ProtocolError)
 from emfc_ros.core.device.function_generator import GeneratorSpec
 
+#: A supervisor that has not woken for this long means the host stalled [s] (it wakes every
+#: 50 ms at most).
+HOST_STALL_S = 0.25
 SEQ_MOD = 2 ** 32
 SEQ_HALF = 2 ** 31
 HOST_COUNTERS = ('frames_received', 'blocks_delivered', 'blocks_overflowed', 'gaps',
                  'missing_frames', 'missing_samples', 'duplicates', 'reordered', 'late',
                  'index_discontinuities', 'corrupt', 'rejected', 'stale', 'foreign',
                  'heartbeats_sent', 'heartbeat_replies', 'heartbeat_misses', 'requests',
-                 'request_retries', 'request_timeouts', 'reconnects', 'setpoint_frames_sent')
+                 'request_retries', 'request_timeouts', 'reconnects', 'setpoint_frames_sent',
+                 'host_stalls')
 
 
 class ReorderBuffer:
@@ -281,6 +285,9 @@ class UdpBackend:
         self._running = False
         self._need_recover = False
         self._last_rx = self._clock()
+        # When the host itself stalls (its threads did not run), the silence it measures is
+        # its own: the device gets a fresh device_timeout_s from the end of the stall.
+        self._last_wake = self._awake_since = self._clock()
         self._closed = threading.Event()
         family = socket.AF_INET6 if ':' in bind[0] else socket.AF_INET
         self._sock = socket.socket(family, socket.SOCK_DGRAM)
@@ -455,8 +462,9 @@ class UdpBackend:
         out['device_watchdog_tripped'] = int(hb.watchdog_tripped) if hb else 0
         trip = hb.watchdog_trip_index if hb else None
         out['device_watchdog_trip_index'] = -1 if trip is None else int(trip)
-        # Silence of the device (no datagram at all), while it should be running.
-        out['device_silent_ms'] = int(1000.0 * max(0.0, self._clock() - self._last_rx)) \
+        # Silence of the device (no datagram at all) while it should be running and the
+        # host was listening.
+        out['device_silent_ms'] = int(1000.0 * self._silence_s(self._clock())) \
             if self._running else 0
         return out
 
@@ -664,17 +672,27 @@ class UdpBackend:
 
     # -- the supervisor ---------------------------------------------------------------------
 
+    def _silence_s(self, now: float) -> float:
+        """Seconds the device has been silent while the host was listening."""
+        if now - self._last_wake > HOST_STALL_S:
+            return 0.0          # the supervisor has not run lately: the host is stalled
+        return max(0.0, now - max(self._last_rx, self._awake_since))
+
     def _supervise_loop(self) -> None:
         next_beat = self._clock()
         while not self._closed.wait(max(0.0, min(next_beat - self._clock(), 0.05))):
             now = self._clock()
+            if now - self._last_wake > HOST_STALL_S:
+                self._awake_since = now
+                self.counters['host_stalls'] += 1
+            self._last_wake = now
             if now < next_beat:
                 continue
             next_beat = max(next_beat + self.heartbeat_period_s, now)
             if self.config is None:
                 continue
             self._heartbeat(now)
-            lost = now - self._last_rx > self.device_timeout_s
+            lost = self._silence_s(now) > self.device_timeout_s
             if self._running and self.auto_reconnect and (lost or self._need_recover):
                 self._recover()
 
