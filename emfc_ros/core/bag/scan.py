@@ -149,7 +149,7 @@ class McapScan:
             Records in file order.
         """
         with open(self.path, 'rb') as handle:
-            summary = _summary(handle)
+            summary = read_summary(handle)
             if summary is not None:
                 yield from self._indexed(handle, summary)
             else:
@@ -270,8 +270,20 @@ class McapScan:
             self.end_B = pos
 
 
-def _summary(handle: BinaryIO):
-    """The file's summary if it has a footer and chunk indexes for its messages, else None."""
+def read_summary(handle: BinaryIO):
+    """
+    The summary of an MCAP file that has a footer and chunk indexes for its messages.
+
+    Parameters
+    ----------
+    handle : file
+        The file, opened for binary reading.
+
+    Returns
+    -------
+    mcap.summary.Summary or None
+        None when the file has no (readable) summary, or messages outside chunks.
+    """
     try:
         size = handle.seek(0, os.SEEK_END)
         if size < 2 * len(MAGIC):
@@ -346,4 +358,4 @@ def scan_bag(bag: Path, names: List[str]) -> List[ChunkDamage]:
     return damage
 
 
-__all__ = ['ChunkDamage', 'McapScan', 'scan_bag']
+__all__ = ['ChunkDamage', 'MAGIC', 'McapScan', 'read_summary', 'scan_bag']
