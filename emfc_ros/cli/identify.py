@@ -87,12 +87,13 @@ def main(argv: Optional[List[str]] = None) -> int:
     if args.load_changer_coupled is not None:
         options['load_changer_coupled'] = args.load_changer_coupled == 'true'
     out = Path(args.out) if args.out else bag.with_name(bag.name + '_identification')
+    from emfc_ros.core.bag.errors import BagFormatError
     from emfc_ros.core.ident.from_bag import identify_bag, PlantConfigurationError
     from emfc_ros.core.report import write_report
     t0 = time.monotonic()
     try:
         result, info = identify_bag(bag, options, args.namespace, progress=_progress)
-    except PlantConfigurationError as exc:
+    except (PlantConfigurationError, BagFormatError) as exc:
         print(f'emfc-identify: {exc}', file=sys.stderr)
         return 2
     except (ValueError, OSError, KeyError) as exc:

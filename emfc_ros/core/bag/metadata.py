@@ -212,7 +212,9 @@ def read_metadata(folder: Path) -> Dict[str, object]:
     path = Path(folder) / METADATA_FILE
     try:
         doc = load_yaml_file(path)
-    except (OSError, yaml.YAMLError, YamlRefused) as exc:
+    except YamlRefused as exc:
+        raise BagFormatError(str(exc)) from exc
+    except (OSError, yaml.YAMLError) as exc:
         raise BagFormatError(f'cannot read {path}: {one_line(exc)}') from exc
     if not isinstance(doc, dict) or not isinstance(
             doc.get('rosbag2_bagfile_information'), dict):

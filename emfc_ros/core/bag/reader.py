@@ -36,6 +36,7 @@ from rosbags.typesys import get_typestore, Stores
 
 from emfc_ros.core.bag.cdr import decode_block
 from emfc_ros.core.bag.errors import BagFormatError, StreamGapError
+from emfc_ros.core.bag.metadata import METADATA_FILE, read_metadata
 from emfc_ros.core.bag.scan import ChunkDamage, McapScan
 from emfc_ros.core.blocks import StreamDescription
 from emfc_ros.core.errors import BlockError
@@ -181,6 +182,12 @@ class Stream:
         return self.samples[self.channel_names.index(name)]
 
 
+def _check_metadata(bag_path) -> None:
+    """Refuse a hostile metadata.yaml before rosbags parses it (emfc_ros.core.safe_yaml)."""
+    if (Path(bag_path) / METADATA_FILE).is_file():
+        read_metadata(Path(bag_path))
+
+
 def open_reader(bag_path) -> Reader:
     """
     Open a bag with rosbags' rosbag2 reader, with a helpful error for damaged bags.
@@ -200,6 +207,7 @@ def open_reader(bag_path) -> Reader:
     BagFormatError
         If the bag cannot be opened (run ``emfc-bag-repair`` on a bag whose recorder died).
     """
+    _check_metadata(bag_path)
     try:
         reader = Reader(Path(bag_path))
         reader.open()
@@ -450,6 +458,7 @@ def read_messages(bag_path, topic: str) -> Iterator[Tuple[int, object]]:
         If corrupt chunks were skipped (their messages are not yielded).
     """
     typestore = get_typestore(Stores.ROS2_JAZZY)
+    _check_metadata(bag_path)
     try:
         reader = AnyReader([Path(bag_path)], default_typestore=typestore)
         reader.open()
