@@ -6,8 +6,10 @@ inside a chunk, read back, repaired, and the repaired bag is read with rosbags (
 reader).
 """
 
+import shutil
 import warnings
 
+from hypothesis import given, HealthCheck, settings, strategies as st
 from mcap.reader import make_reader
 import numpy as np
 import pytest
@@ -17,6 +19,7 @@ from rosbags.typesys import get_typestore, Stores
 from emfc_ros.cli import bag_info, bag_repair
 from emfc_ros.core.bag import (BagDamageWarning, BagWriter, OfferedQos, read_messages,
                                read_metadata, read_streams, repair_bag, StreamGapError)
+from emfc_ros.core.bag.info import bag_info as info_text
 from emfc_ros.core.blocks import Channel, pack, StreamDescription
 
 TS = get_typestore(Stores.ROS2_JAZZY)
@@ -207,3 +210,34 @@ def test_repair_of_a_killed_recording_with_a_corrupt_chunk(tmp_path):
     total, counts, stamps = read_independently(bag)
     assert total == 16 and counts == {'/s': 15, '/s/description': 1}
     assert stamps[-1] == t_ns(N_BLOCKS - 1)            # the chunks after the bad one too
+
+
+@pytest.fixture(scope='module')
+def template(tmp_path_factory):
+    bag = tmp_path_factory.mktemp('template') / 'b'
+    write_bag(bag)
+    return bag
+
+
+@settings(max_examples=40, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.data())
+def test_any_flipped_byte_is_found_and_repaired_to_a_bag_rosbags_reads(
+        template, tmp_path, data):
+    mcap_name = 'b_0.mcap'
+    raw = bytearray((template / mcap_name).read_bytes())
+    pos = data.draw(st.integers(0, len(raw) - 1), label='byte')
+    bit = data.draw(st.integers(0, 7), label='bit')
+    bag = tmp_path / 'b'
+    shutil.rmtree(bag, ignore_errors=True)     # hypothesis reuses the function's tmp_path
+    shutil.copytree(template, bag)
+    raw[pos] ^= 1 << bit
+    (bag / mcap_name).write_bytes(bytes(raw))
+    assert 'Integrity:         DAMAGED' in info_text(bag, check=True)
+    report = repair_bag(bag)
+    [f] = report.files
+    assert f.status == 'recovered'
+    total = N_BLOCKS + 1
+    assert f.message_count + f.lost_messages == total
+    assert read_independently(bag)[0] == f.message_count
+    assert 'all intact' in info_text(bag, check=True)

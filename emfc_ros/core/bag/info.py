@@ -16,7 +16,7 @@ import warnings
 
 from emfc_ros.core.bag.metadata import read_metadata
 from emfc_ros.core.bag.reader import BagDamageWarning, read_streams
-from emfc_ros.core.bag.scan import McapScan
+from emfc_ros.core.bag.scan import data_section_crc_ok, McapScan
 
 
 def _time(ns: int) -> str:
@@ -56,6 +56,14 @@ def integrity_lines(bag: Path) -> List[str]:
         problems += [f'  {d.describe()}' for d in scan.damage]
         if not scan.complete:
             problems.append(f'  {name}: not finished ({scan.error}) after byte {scan.end_B}')
+        if scan.magic_damaged:
+            problems.append(f'  {name}: its leading magic bytes are damaged')
+        if scan.summary_damaged:
+            problems.append(f'  {name}: its summary or footer is damaged (the data section '
+                            'was read without it)')
+        with open(bag / name, 'rb') as handle:
+            if not scan.damage and data_section_crc_ok(handle) is False:
+                problems.append(f'  {name}: the data section fails its CRC (outside chunks)')
     if not problems:
         return [f'Integrity:         {chunks} chunks checked (CRC), all intact']
     return [f'Integrity:         DAMAGED, {chunks} chunks checked; run `emfc-bag-repair '

@@ -20,6 +20,7 @@ import dataclasses
 import os
 from pathlib import Path
 import re
+import struct
 from typing import Dict, List, Optional, Tuple
 
 from mcap.records import Channel, Message, Metadata, Schema
@@ -29,7 +30,8 @@ import yaml
 from emfc_ros.core.bag.errors import BagFormatError
 from emfc_ros.core.bag.metadata import (
     build_metadata, FileStats, METADATA_FILE, read_metadata, TopicStats, write_metadata)
-from emfc_ros.core.bag.scan import ChunkDamage, McapScan, read_summary
+from emfc_ros.core.bag.scan import (ChunkDamage, data_section_crc_ok, McapScan, read_header,
+                                    read_summary)
 from emfc_ros.core.bag.writer import LIBRARY, PROFILE
 from emfc_ros.core.safe_yaml import load_yaml_text, YamlRefused
 
@@ -149,8 +151,10 @@ class RepairReport:
                 extra = (f' ({len(f.damage)} corrupt chunks skipped: {f.lost_messages} '
                          f'messages, {f.lost_s:.6f} s of log time lost'
                          + (f'; then {f.error}' if f.error else '') + ')')
-            elif f.status == 'recovered':
+            elif f.status == 'recovered' and f.error:
                 extra = f' (lost {f.lost_bytes} B after the last complete record: {f.error})'
+            elif f.status == 'recovered':
+                extra = ' (rewritten: damage outside the chunks, no message lost)'
             lines.append(f'  {f.path}: {f.status}, {f.message_count} messages{extra}')
             lines.extend(f'    {d.describe()}' for d in f.damage)
         lost = sum(f.lost_messages for f in self.files)
@@ -215,14 +219,18 @@ def storage_files(bag: Path) -> List[str]:
 
 
 def _intact(path: Path):
-    """Return the summary of an intact MCAP file (every chunk CRC checked), or None."""
+    """Return the summary of an intact MCAP file (data section or every chunk CRC), or None."""
     try:
         with open(path, 'rb') as handle:
             summary = read_summary(handle)
-    except OSError:
+            data_ok = data_section_crc_ok(handle) if summary is not None else None
+            header = read_header(handle)
+    except (OSError, struct.error):
         return None
-    if summary is None:
+    if summary is None or data_ok is False or header is None or header.profile != PROFILE:
         return None
+    if data_ok:
+        return summary
     scan = McapScan(path, path.name, expand=False)
     for _ in scan.records():
         pass
@@ -239,7 +247,7 @@ def _recover(path: Path, out: Path, table: _TopicTable, stats: FileStats,
     new_channel: Dict[int, int] = {}
     scan = McapScan(path, path.name)
     with open(out, 'xb') as dst:
-        writer = McapWriter(dst, compression=CompressionType.NONE)
+        writer = McapWriter(dst, compression=CompressionType.NONE, enable_data_crcs=True)
         writer.start(PROFILE, LIBRARY)
         try:
             for record in scan.records():

@@ -25,6 +25,7 @@ import os
 from pathlib import Path
 import struct
 from typing import BinaryIO, Dict, Iterator, List, Optional, Tuple
+import zlib
 
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
@@ -35,6 +36,8 @@ from mcap.stream_reader import breakup_chunk, get_chunk_data_stream
 
 MAGIC = b'\x89MCAP0\r\n'
 _PREFIX_B = 9  # opcode (1 B) and record length (8 B)
+_FOOTER_B = _PREFIX_B + 8 + 8 + 4  # summary start, summary offset start, summary CRC
+_DATA_END_B = _PREFIX_B + 4        # data section CRC
 _PARSERS = {Opcode.CHANNEL: Channel.read, Opcode.CHUNK: Chunk.read,
             Opcode.CHUNK_INDEX: ChunkIndex.read, Opcode.DATA_END: DataEnd.read,
             Opcode.FOOTER: Footer.read, Opcode.HEADER: Header.read,
@@ -112,8 +115,12 @@ class McapScan:
     The readable records of one MCAP file, in file order, with the damage found.
 
     Iterate :meth:`records` once; afterwards :attr:`damage` lists the skipped chunks,
-    :attr:`complete` says whether the file was read to its footer, :attr:`end_B` is the
-    offset after the last record read and :attr:`error` why reading stopped early.
+    :attr:`complete` says whether the file was read to its end of data, :attr:`end_B` is
+    the offset after the last record read, :attr:`error` why reading stopped early,
+    :attr:`chunks` how many chunks were met, :attr:`summary_damaged` whether the file was
+    finished (data end record) but its summary, footer or trailing magic is missing, fails
+    its CRC or cannot be read (so it was read sequentially), and :attr:`magic_damaged`
+    whether the leading magic bytes were wrong.
 
     Parameters
     ----------
@@ -135,6 +142,8 @@ class McapScan:
         self.end_B = 0
         self.error = ''
         self.chunks = 0
+        self.summary_damaged = False
+        self.magic_damaged = False
 
     def records(self) -> Iterator[McapRecord]:
         """
@@ -155,6 +164,8 @@ class McapScan:
             else:
                 handle.seek(0)
                 yield from self._sequential(handle)
+                # Finished (DataEnd or footer found) but no usable summary: damaged at the end.
+                self.summary_damaged = self.complete
 
     # -- indexed: the summary is there ---------------------------------------------------
 
@@ -163,7 +174,10 @@ class McapScan:
         yield from summary.schemas.values()
         yield from summary.channels.values()
         for index in sorted(summary.metadata_indexes, key=lambda i: i.offset):
-            record = _read_at(handle, index.offset, index.length)
+            try:
+                record = _read_at(handle, index.offset, index.length)
+            except Exception:  # noqa: S112 - a damaged metadata record is only metadata
+                continue
             if isinstance(record, Metadata):
                 yield record
         for index in sorted(summary.chunk_indexes, key=lambda i: i.chunk_start_offset):
@@ -209,9 +223,13 @@ class McapScan:
     def _sequential(self, handle: BinaryIO) -> Iterator[McapRecord]:
         size = handle.seek(0, os.SEEK_END)
         handle.seek(0)
-        if handle.read(len(MAGIC)) != MAGIC:
+        magic = handle.read(len(MAGIC))
+        if magic != MAGIC and (len(magic) < len(MAGIC) or handle.read(1) != bytes(
+                [Opcode.HEADER])):
             self.error = 'no MCAP magic at the start'
             return
+        self.magic_damaged = magic != MAGIC      # a damaged magic, a header after it: go on
+        handle.seek(len(MAGIC))
         self.end_B = pos = len(MAGIC)
         topics: Dict[int, str] = {}
         lost: Optional[ChunkDamage] = None
@@ -256,7 +274,8 @@ class McapScan:
                 except Exception as exc:  # a damaged record outside chunks: stop here
                     self.error = f'damaged record at byte {pos}: {_describe(exc)}'
                     return
-                if isinstance(record, Footer):
+                if isinstance(record, (DataEnd, Footer)):
+                    # The summary after DataEnd repeats what the data section said.
                     self.complete = True
                     self.end_B = handle.seek(0, os.SEEK_END)
                     return
@@ -282,7 +301,8 @@ def read_summary(handle: BinaryIO):
     Returns
     -------
     mcap.summary.Summary or None
-        None when the file has no (readable) summary, or messages outside chunks.
+        None when the file has no summary, one that fails the footer's CRC or cannot be
+        read, or messages outside chunks.
     """
     try:
         size = handle.seek(0, os.SEEK_END)
@@ -290,6 +310,8 @@ def read_summary(handle: BinaryIO):
             return None
         handle.seek(size - len(MAGIC))
         if handle.read(len(MAGIC)) != MAGIC:
+            return None
+        if not _summary_crc_ok(handle, size):
             return None
         handle.seek(0)
         summary = make_reader(handle).get_summary()
@@ -300,6 +322,97 @@ def read_summary(handle: BinaryIO):
     if summary.statistics.message_count and not summary.chunk_indexes:
         return None  # messages outside chunks: only the sequential pass sees them
     return summary
+
+
+def _summary_crc_ok(handle: BinaryIO, size: int) -> bool:
+    """Whether the summary section matches the footer's CRC (True when there is none)."""
+    footer_at = size - len(MAGIC) - _FOOTER_B
+    if footer_at < len(MAGIC):
+        return False
+    handle.seek(footer_at)
+    raw = handle.read(_FOOTER_B)
+    opcode, length, summary_start, _, crc = struct.unpack('<BQQQI', raw)
+    if opcode != Opcode.FOOTER or length != _FOOTER_B - _PREFIX_B:
+        return False
+    if summary_start == 0 or crc == 0:
+        return True
+    if summary_start > footer_at:
+        return False
+    handle.seek(summary_start)
+    value = 0
+    remaining = footer_at - summary_start
+    while remaining:
+        part = handle.read(min(remaining, 1 << 20))
+        if not part:
+            return False
+        value = zlib.crc32(part, value)
+        remaining -= len(part)
+    return zlib.crc32(raw[:-4], value) == crc
+
+
+def data_section_crc_ok(handle: BinaryIO) -> Optional[bool]:
+    """
+    Check the CRC of an MCAP file's data section (header, chunks and indexes) if it has one.
+
+    Parameters
+    ----------
+    handle : file
+        The file, opened for binary reading.
+
+    Returns
+    -------
+    bool or None
+        Whether the data section matches the CRC in its DataEnd record (False also when
+        there is no DataEnd record before the summary); None if the file has no footer, no
+        summary or no data section CRC.
+    """
+    size = handle.seek(0, os.SEEK_END)
+    footer_at = size - len(MAGIC) - _FOOTER_B
+    if footer_at < len(MAGIC):
+        return None
+    handle.seek(footer_at)
+    opcode, _, summary_start, _, _ = struct.unpack('<BQQQI', handle.read(_FOOTER_B))
+    data_end_at = summary_start - _DATA_END_B
+    if opcode != Opcode.FOOTER or summary_start == 0 or not (
+            len(MAGIC) <= data_end_at <= footer_at - _DATA_END_B):
+        return None
+    handle.seek(data_end_at)
+    opcode, length, crc = struct.unpack('<BQI', handle.read(_DATA_END_B))
+    if opcode != Opcode.DATA_END or length != 4:
+        return False                    # the record before the summary is always DataEnd
+    if crc == 0:
+        return None
+    handle.seek(0)
+    value = 0
+    remaining = data_end_at
+    while remaining:
+        part = handle.read(min(remaining, 1 << 20))
+        if not part:
+            return False
+        value = zlib.crc32(part, value)
+        remaining -= len(part)
+    return value == crc
+
+
+def read_header(handle: BinaryIO) -> Optional[Header]:
+    """
+    The Header record of an MCAP file.
+
+    Parameters
+    ----------
+    handle : file
+        The file, opened for binary reading.
+
+    Returns
+    -------
+    mcap.records.Header or None
+        None if the first record is not a readable header.
+    """
+    try:
+        record = _read_at(handle, len(MAGIC), 0)
+    except Exception:  # a damaged header
+        return None
+    return record if isinstance(record, Header) else None
 
 
 def _read_at(handle: BinaryIO, offset: int, length: int) -> Optional[McapRecord]:
@@ -358,4 +471,5 @@ def scan_bag(bag: Path, names: List[str]) -> List[ChunkDamage]:
     return damage
 
 
-__all__ = ['ChunkDamage', 'MAGIC', 'McapScan', 'read_summary', 'scan_bag']
+__all__ = ['ChunkDamage', 'data_section_crc_ok', 'MAGIC', 'McapScan', 'read_header',
+           'read_summary', 'scan_bag']
