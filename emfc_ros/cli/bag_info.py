@@ -1,9 +1,11 @@
 """
 emfc-bag-info: summarise a bag like ``ros2 bag info``, without ROS.
 
-``emfc-bag-info BAG_DIR [--streams]`` prints the files, size, duration, topics with types
-and counts, the custom data keys and, with ``--streams``, each block stream's sample rate,
-channels, sample range and gaps. Exit code 2 if the bag cannot be read (for a killed
+``emfc-bag-info BAG_DIR [--check] [--streams]`` prints the files, size, duration, topics with
+types and counts, the custom data keys; with ``--check`` (implied by ``--streams``) whether
+every chunk's CRC is intact, listing corrupt chunks (byte offset, time range, messages lost);
+with ``--streams`` each block stream's sample rate, channels, sample range and gaps (the
+blocks of corrupt chunks are gaps). Exit code 2 if the bag cannot be read (for a killed
 recording, run ``emfc-bag-repair`` first).
 """
 
@@ -35,11 +37,13 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser = argparse.ArgumentParser(prog='emfc-bag-info',
                                      description='Summarise a rosbag2 bag without ROS.')
     parser.add_argument('bag', type=Path, help='bag folder')
+    parser.add_argument('--check', action='store_true',
+                        help='also check every chunk (CRC) and list the corrupt ones')
     parser.add_argument('--streams', action='store_true',
-                        help='also read and describe the block streams')
+                        help='also read and describe the block streams (implies --check)')
     args = parser.parse_args(argv)
     try:
-        print(bag_info(args.bag, streams=args.streams))
+        print(bag_info(args.bag, streams=args.streams, check=args.check))
     except (BagFormatError, OSError, ValueError, KeyError) as exc:
         print(f'emfc-bag-info: {exc}', file=sys.stderr)
         return 2

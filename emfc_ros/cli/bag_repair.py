@@ -1,12 +1,14 @@
 """
-emfc-bag-repair: make a bag whose recorder was killed readable again.
+emfc-bag-repair: make a bag whose recorder was killed, or whose files are damaged, readable.
 
-``emfc-bag-repair BAG_DIR [--no-backup]`` recovers every complete MCAP record of each damaged
-storage file (a killed recorder leaves its last file without summary and footer), rewrites
-those files as valid MCAP (the original kept as ``<file>.damaged`` unless ``--no-backup``)
-and rebuilds ``metadata.yaml`` from all storage files, keeping its ``custom_data``. Intact
-files are not rewritten, so running it on a good bag is harmless. Exit code 0 on success,
-2 if the folder is not a bag.
+``emfc-bag-repair BAG_DIR [--no-backup]`` checks every chunk's CRC of every storage file and
+recovers every intact MCAP record of each damaged file (a killed recorder leaves its last
+file without summary and footer; a corrupt chunk is skipped and reported with its byte
+offset, time range and messages lost), rewrites those files as valid MCAP (the original kept
+as ``<file>.damaged`` unless ``--no-backup``) and rebuilds ``metadata.yaml`` from all storage
+files, keeping its ``custom_data``. Intact files are not rewritten, so running it on a good
+bag is harmless. Exit code 0 on success (the summary says what was lost), 2 if the folder is
+not a bag.
 """
 
 from __future__ import annotations
@@ -23,8 +25,8 @@ from emfc_ros.core.bag.repair import repair_bag
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='emfc-bag-repair',
-        description='Recover the complete records of a killed recording and rebuild '
-                    'metadata.yaml (rosbag2 version 9, MCAP storage).')
+        description='Recover the intact records of a killed recording or damaged bag and '
+                    'rebuild metadata.yaml (rosbag2 version 9, MCAP storage).')
     parser.add_argument('bag', type=Path, help='bag folder (holding metadata.yaml and *.mcap)')
     parser.add_argument('--no-backup', action='store_true',
                         help='delete damaged originals instead of keeping <file>.damaged')

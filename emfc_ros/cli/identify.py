@@ -22,6 +22,8 @@ from typing import List, Optional
 
 import yaml
 
+from emfc_ros.core.safe_yaml import load_yaml_file, one_line, YamlRefused
+
 
 def _progress(step: str, fraction: float, message: str) -> None:
     print(f'  {step:<12} {100 * fraction:5.1f} %  {message}', flush=True)
@@ -65,9 +67,13 @@ def main(argv: Optional[List[str]] = None) -> int:
     options = {}
     if args.options:
         try:
-            options = yaml.safe_load(Path(args.options).read_text()) or {}
+            options = load_yaml_file(args.options) or {}
+        except YamlRefused as exc:
+            print(f'emfc-identify: {exc}', file=sys.stderr)
+            return 2
         except (OSError, yaml.YAMLError) as exc:
-            print(f'emfc-identify: cannot read {args.options}: {exc}', file=sys.stderr)
+            print(f'emfc-identify: cannot read {args.options}: {one_line(exc)}',
+                  file=sys.stderr)
             return 2
         if not isinstance(options, dict):
             print(f'emfc-identify: {args.options} must hold a mapping', file=sys.stderr)
@@ -81,12 +87,13 @@ def main(argv: Optional[List[str]] = None) -> int:
     if args.load_changer_coupled is not None:
         options['load_changer_coupled'] = args.load_changer_coupled == 'true'
     out = Path(args.out) if args.out else bag.with_name(bag.name + '_identification')
+    from emfc_ros.core.bag.errors import BagFormatError
     from emfc_ros.core.ident.from_bag import identify_bag, PlantConfigurationError
     from emfc_ros.core.report import write_report
     t0 = time.monotonic()
     try:
         result, info = identify_bag(bag, options, args.namespace, progress=_progress)
-    except PlantConfigurationError as exc:
+    except (PlantConfigurationError, BagFormatError) as exc:
         print(f'emfc-identify: {exc}', file=sys.stderr)
         return 2
     except (ValueError, OSError, KeyError) as exc:

@@ -21,6 +21,7 @@ from emfc_ros.core.errors import ConfigError
 from emfc_ros.core.plan_check import (check_balance_file, check_experiment,
                                       check_identification, check_recording_topics,
                                       resolve_waveform_paths)
+from emfc_ros.core.safe_yaml import load_yaml_file, one_line
 from emfc_ros.core.signals.experiment import DEFAULT_CHANNELS
 from emfc_ros.core.signals.spec import find_experiment_mapping
 
@@ -313,10 +314,10 @@ def plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
     for i, name in enumerate(files):
         file_path = Path(name) if Path(name).is_absolute() else base_dir / name
         try:
-            doc = yaml.safe_load(file_path.read_text())
+            doc = load_yaml_file(file_path)
         except (OSError, yaml.YAMLError) as exc:
             raise ConfigError(f'run.experiment_files[{i}]', f'cannot read {file_path}: '
-                              f'{exc}') from exc
+                              f'{one_line(exc)}') from exc
         try:
             mapping = unflatten(flatten(find_experiment_mapping(doc, str(file_path))))
         except ValueError as exc:
@@ -418,9 +419,9 @@ def read_parameters_file(path: Path, node: str = 'daq_bridge',
         If the file cannot be read or holds no parameters for the node.
     """
     try:
-        doc = yaml.safe_load(Path(path).read_text())
+        doc = load_yaml_file(path)
     except (OSError, yaml.YAMLError) as exc:
-        raise ConfigError(key, f'cannot read {path}: {exc}') from exc
+        raise ConfigError(key, f'cannot read {path}: {one_line(exc)}') from exc
     if not isinstance(doc, Mapping):
         raise ConfigError(key, f'{path}: expected a YAML mapping at the top level')
     found: Dict[str, Mapping[str, Any]] = {}
@@ -626,9 +627,9 @@ def load_plan(path: Path) -> RunPlan:
         If the file is unreadable or a key is wrong.
     """
     try:
-        doc = yaml.safe_load(Path(path).read_text())
+        doc = load_yaml_file(path)
     except (OSError, yaml.YAMLError) as exc:
-        raise ConfigError(str(path), f'cannot read the run plan: {exc}') from exc
+        raise ConfigError(str(path), f'cannot read the run plan: {one_line(exc)}') from exc
     if not isinstance(doc, Mapping) or not isinstance(doc.get('run'), Mapping):
         raise ConfigError(f'{path}: run', 'a run plan needs a top-level run: mapping')
     return plan_from_mapping(doc['run'], Path(path).resolve().parent, Path(path))

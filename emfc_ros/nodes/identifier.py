@@ -34,6 +34,7 @@ import yaml
 
 from emfc_ros.core.blocks import Continuity, SequenceTracker
 from emfc_ros.core.errors import BlockError
+from emfc_ros.core.safe_yaml import load_yaml_file, one_line, YamlRefused
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, LATCHED_QOS, msg_to_block, msg_to_description, node_diagnostics, steady_clock)
 from emfc_ros.nodes.params import declare_table
@@ -113,9 +114,11 @@ class IdentifierNode(Node):
     @staticmethod
     def _read_options(path: str) -> dict:
         try:
-            options = yaml.safe_load(Path(path).read_text()) or {}
+            options = load_yaml_file(path) or {}
+        except YamlRefused as exc:
+            raise ValueError(f'options_file {exc}') from exc
         except (OSError, yaml.YAMLError) as exc:
-            raise ValueError(f'options_file {path}: {exc}') from exc
+            raise ValueError(f'options_file {path}: {one_line(exc)}') from exc
         if not isinstance(options, dict):
             raise ValueError(f'options_file {path} must hold a mapping')
         return options

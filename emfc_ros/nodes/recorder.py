@@ -59,6 +59,7 @@ from emfc_ros.core.bag.qos import DURABILITY, HISTORY, LIVELINESS, policy_name, 
 from emfc_ros.core.config import unflatten
 from emfc_ros.core.device.faults import faults_from_extra
 from emfc_ros.core.errors import ConfigError
+from emfc_ros.core.safe_yaml import load_yaml_text, one_line, YamlRefused
 from emfc_ros.nodes.convert import LATCHED_QOS, node_diagnostics
 from emfc_ros.nodes.params import declare_table, pending_refusals
 from emfc_ros.nodes.spin import node_logger, node_main
@@ -133,9 +134,11 @@ def custom_entries(text: str) -> Dict[str, str]:
     if not text.strip():
         return {}
     try:
-        doc = yaml.safe_load(text)
+        doc = load_yaml_text(text, 'parameter custom_data')
+    except YamlRefused as exc:
+        raise ValueError(str(exc)) from None
     except yaml.YAMLError as exc:
-        raise ValueError(f'custom_data must be a YAML mapping: {exc}') from None
+        raise ValueError(f'custom_data must be a YAML mapping: {one_line(exc)}') from None
     if not isinstance(doc, dict) or not all(isinstance(k, str) for k in doc):
         raise ValueError('custom_data must be a YAML mapping with string keys')
     return {k: v if isinstance(v, str) else yaml.safe_dump(v, sort_keys=False)

@@ -1,8 +1,10 @@
 """
 A ``ros2 bag info``-like summary of a bag, without ROS.
 
-Reads ``metadata.yaml`` for files, duration and topics, and optionally the block streams
-(sample rate, channels, samples, gaps) with :func:`emfc_ros.core.bag.reader.read_streams`.
+Reads ``metadata.yaml`` for files, duration and topics, optionally checks every chunk of the
+storage files (CRCs; corrupt chunks listed with byte offset, time range and messages lost),
+and optionally the block streams (sample rate, channels, samples, gaps) with
+:func:`emfc_ros.core.bag.reader.read_streams`.
 """
 
 from __future__ import annotations
@@ -10,9 +12,11 @@ from __future__ import annotations
 import datetime
 from pathlib import Path
 from typing import List
+import warnings
 
 from emfc_ros.core.bag.metadata import read_metadata
-from emfc_ros.core.bag.reader import read_streams
+from emfc_ros.core.bag.reader import BagDamageWarning, read_streams
+from emfc_ros.core.bag.scan import data_section_crc_ok, McapScan
 
 
 def _time(ns: int) -> str:
@@ -28,7 +32,45 @@ def _clock_note(clock: str) -> str:
     return ''
 
 
-def bag_info(bag_path, streams: bool = False) -> str:
+def integrity_lines(bag: Path) -> List[str]:
+    """
+    Check every chunk of every storage file (CRCs included) and describe what was found.
+
+    Parameters
+    ----------
+    bag : pathlib.Path
+        The bag folder.
+
+    Returns
+    -------
+    list of str
+        ``Integrity: ...`` and one line per corrupt chunk or unfinished file.
+    """
+    from emfc_ros.core.bag.repair import storage_files
+    chunks, problems = 0, []
+    for name in storage_files(bag):
+        scan = McapScan(bag / name, name, expand=False)
+        for _ in scan.records():
+            pass
+        chunks += scan.chunks
+        problems += [f'  {d.describe()}' for d in scan.damage]
+        if not scan.complete:
+            problems.append(f'  {name}: not finished ({scan.error}) after byte {scan.end_B}')
+        if scan.magic_damaged:
+            problems.append(f'  {name}: its leading magic bytes are damaged')
+        if scan.summary_damaged:
+            problems.append(f'  {name}: its summary or footer is damaged (the data section '
+                            'was read without it)')
+        with open(bag / name, 'rb') as handle:
+            if not scan.damage and data_section_crc_ok(handle) is False:
+                problems.append(f'  {name}: the data section fails its CRC (outside chunks)')
+    if not problems:
+        return [f'Integrity:         {chunks} chunks checked (CRC), all intact']
+    return [f'Integrity:         DAMAGED, {chunks} chunks checked; run `emfc-bag-repair '
+            f'{bag}` to rebuild it from the intact records:'] + problems
+
+
+def bag_info(bag_path, streams: bool = False, check: bool = False) -> str:
     """
     Describe a bag for people.
 
@@ -37,7 +79,10 @@ def bag_info(bag_path, streams: bool = False) -> str:
     bag_path : str or pathlib.Path
         The bag folder.
     streams : bool
-        Also read the block streams and describe them (reads every block).
+        Also read the block streams and describe them (reads every block); implies
+        ``check``.
+    check : bool
+        Also check every chunk's CRC and list the corrupt chunks.
 
     Returns
     -------
@@ -81,9 +126,14 @@ def bag_info(bag_path, streams: bool = False) -> str:
             more = f' ... ({len(str(custom[key]))} characters)' if '\n' in str(
                 custom[key]) else ''
             lines.append(f'  {key}: {first}{more}')
+    if check or streams:
+        lines += integrity_lines(bag)
     if streams:
         lines.append('Block streams:')
-        for key, s in read_streams(bag, on_gap='nan').items():
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore', BagDamageWarning)  # listed under Integrity
+            read = read_streams(bag, on_gap='nan')
+        for key, s in read.items():
             channels = ', '.join(f'{n} [{u}]' for n, u in zip(s.channel_names,
                                                               s.channel_units))
             lines.append(f'  {key}: {s.sample_rate_Hz:g} Hz, epoch {s.epoch}, samples '

@@ -15,6 +15,7 @@ from typing import Dict, List, Mapping, Optional, Sequence
 import yaml
 
 from emfc_ros.core.bag.errors import BagFormatError
+from emfc_ros.core.safe_yaml import load_yaml_file, one_line, YamlRefused
 
 METADATA_FILE = 'metadata.yaml'
 VERSION = 9
@@ -210,9 +211,11 @@ def read_metadata(folder: Path) -> Dict[str, object]:
     """
     path = Path(folder) / METADATA_FILE
     try:
-        doc = yaml.safe_load(path.read_text(encoding='utf-8'))
+        doc = load_yaml_file(path)
+    except YamlRefused as exc:
+        raise BagFormatError(str(exc)) from exc
     except (OSError, yaml.YAMLError) as exc:
-        raise BagFormatError(f'cannot read {path}: {exc}') from exc
+        raise BagFormatError(f'cannot read {path}: {one_line(exc)}') from exc
     if not isinstance(doc, dict) or not isinstance(
             doc.get('rosbag2_bagfile_information'), dict):
         raise BagFormatError(f'{path} has no rosbag2_bagfile_information mapping')

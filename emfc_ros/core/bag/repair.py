@@ -1,14 +1,17 @@
 """
-Repair a bag whose recorder died: recover every complete MCAP record, rebuild metadata.yaml.
+Repair a bag: recover every intact MCAP record, rebuild metadata.yaml.
 
 A recorder killed while writing leaves its last MCAP file without summary and footer (and
-possibly a partly written chunk). :func:`repair_bag` reads each damaged file sequentially
-with the ``mcap`` stream reader (chunk CRCs checked) until the truncation, rewrites the
-complete records as a valid MCAP file with summary, keeps the original as
-``<file>.damaged`` (unless asked not to), and rebuilds ``metadata.yaml`` from all storage
-files, keeping the ``custom_data`` of the provisional metadata the recorder wrote.
-Intact files are only read (summary), never rewritten; repairing a good bag changes nothing
-but the metadata's layout.
+possibly a partly written chunk); a damaged disk or copy leaves chunks whose CRC does not
+match. :func:`repair_bag` checks every chunk's CRC of every storage file
+(:mod:`emfc_ros.core.bag.scan`); a file that is truncated or has a corrupt chunk is read
+record by record (the corrupt chunks skipped, reading stops at a truncation), its intact
+records are rewritten as a valid MCAP file with summary, the original is kept as
+``<file>.damaged`` (unless asked not to), and the report says what was lost (messages,
+seconds of log time, byte offsets). ``metadata.yaml`` is rebuilt from all storage files,
+keeping the ``custom_data`` of the provisional metadata the recorder wrote (as ``ros2 bag
+reindex`` rebuilds it). Intact files are only read, never rewritten; repairing a good bag
+changes nothing but the metadata's layout.
 """
 
 from __future__ import annotations
@@ -17,20 +20,21 @@ import dataclasses
 import os
 from pathlib import Path
 import re
+import struct
 from typing import Dict, List, Optional, Tuple
 
-from mcap.reader import make_reader
-from mcap.records import Channel, Footer, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Channel, Message, Metadata, Schema
 from mcap.writer import CompressionType, Writer as McapWriter
 import yaml
 
 from emfc_ros.core.bag.errors import BagFormatError
 from emfc_ros.core.bag.metadata import (
     build_metadata, FileStats, METADATA_FILE, read_metadata, TopicStats, write_metadata)
+from emfc_ros.core.bag.scan import (ChunkDamage, data_section_crc_ok, McapScan, read_header,
+                                    read_summary)
 from emfc_ros.core.bag.writer import LIBRARY, PROFILE
+from emfc_ros.core.safe_yaml import load_yaml_text, YamlRefused
 
-MAGIC = b'\x89MCAP0\r\n'
 _SPLIT_INDEX = re.compile(r'_(\d+)\.mcap$')
 
 
@@ -44,13 +48,16 @@ class FileReport:
     path : str
         File name in the bag folder.
     status : str
-        ``'ok'`` (intact) or ``'recovered'`` (rewritten from its complete records).
+        ``'ok'`` (intact) or ``'recovered'`` (rewritten from its intact records).
     message_count : int
         Messages in the (repaired) file.
     lost_bytes : int
-        Bytes after the last complete record that could not be recovered [B].
+        Bytes that could not be recovered: after the last complete record, and in corrupt
+        chunks [B].
     error : str
-        Why the original could not be read to its end.
+        Why the original could not be read to its end ('' if it could).
+    damage : list of ChunkDamage
+        The corrupt chunks skipped.
     """
 
     path: str
@@ -58,6 +65,31 @@ class FileReport:
     message_count: int
     lost_bytes: int = 0
     error: str = ''
+    damage: List[ChunkDamage] = dataclasses.field(default_factory=list)
+
+    @property
+    def lost_messages(self) -> int:
+        """
+        Messages lost in corrupt chunks (as their message indexes count them).
+
+        Returns
+        -------
+        int
+            The sum over the corrupt chunks whose count is known.
+        """
+        return sum(d.message_count or 0 for d in self.damage)
+
+    @property
+    def lost_s(self) -> float:
+        """
+        Log time spanned by the corrupt chunks [s].
+
+        Returns
+        -------
+        float
+            The sum of their spans.
+        """
+        return sum(d.duration_s for d in self.damage)
 
 
 @dataclasses.dataclass
@@ -114,10 +146,21 @@ class RepairReport:
         """
         lines = [f'{self.bag}:']
         for f in self.files:
-            extra = f' (lost {f.lost_bytes} B after the last complete record: {f.error})' \
-                if f.status == 'recovered' else ''
+            extra = ''
+            if f.status == 'recovered' and f.damage:
+                extra = (f' ({len(f.damage)} corrupt chunks skipped: {f.lost_messages} '
+                         f'messages, {f.lost_s:.6f} s of log time lost'
+                         + (f'; then {f.error}' if f.error else '') + ')')
+            elif f.status == 'recovered' and f.error:
+                extra = f' (lost {f.lost_bytes} B after the last complete record: {f.error})'
+            elif f.status == 'recovered':
+                extra = ' (rewritten: damage outside the chunks, no message lost)'
             lines.append(f'  {f.path}: {f.status}, {f.message_count} messages{extra}')
-        lines.append(f'  total {self.message_count} messages; metadata.yaml rebuilt')
+            lines.extend(f'    {d.describe()}' for d in f.damage)
+        lost = sum(f.lost_messages for f in self.files)
+        more = (f'; {lost} messages ({sum(f.lost_s for f in self.files):.6f} s) lost in '
+                f'corrupt chunks' if any(f.damage for f in self.files) else '')
+        lines.append(f'  total {self.message_count} messages{more}; metadata.yaml rebuilt')
         return '\n'.join(lines)
 
 
@@ -134,8 +177,9 @@ class _TopicTable:
         if stats is None:
             qos_text = channel.metadata.get('offered_qos_profiles', '')
             try:
-                qos = yaml.safe_load(qos_text) if qos_text else []
-            except yaml.YAMLError:
+                qos = load_yaml_text(qos_text, f'{channel.topic} offered_qos_profiles') \
+                    if qos_text else []
+            except (yaml.YAMLError, YamlRefused):
                 qos = []
             stats = self.topics[key] = TopicStats(
                 name=channel.topic, msgtype=msgtype,
@@ -175,40 +219,38 @@ def storage_files(bag: Path) -> List[str]:
 
 
 def _intact(path: Path):
-    """Return the summary of an intact MCAP file, or None."""
+    """Return the summary of an intact MCAP file (data section or every chunk CRC), or None."""
     try:
         with open(path, 'rb') as handle:
-            size = handle.seek(0, os.SEEK_END)
-            if size < 2 * len(MAGIC):
-                return None
-            handle.seek(size - len(MAGIC))
-            if handle.read(len(MAGIC)) != MAGIC:
-                return None
-            handle.seek(0)
-            summary = make_reader(handle).get_summary()
-    except Exception:  # any failure means "not intact": the stream pass decides
+            summary = read_summary(handle)
+            data_ok = data_section_crc_ok(handle) if summary is not None else None
+            header = read_header(handle)
+    except (OSError, struct.error):
         return None
-    if summary is None or summary.statistics is None:
+    if summary is None or data_ok is False or header is None or header.profile != PROFILE:
         return None
-    return summary
+    if data_ok:
+        return summary
+    scan = McapScan(path, path.name, expand=False)
+    for _ in scan.records():
+        pass
+    return summary if scan.complete and not scan.damage else None
 
 
 def _recover(path: Path, out: Path, table: _TopicTable, stats: FileStats,
-             custom: Dict[str, str]) -> Tuple[int, str]:
-    """Stream the complete records of ``path`` into a new MCAP ``out``; return (end, error)."""
+             custom: Dict[str, str]) -> Tuple[int, str, List[ChunkDamage]]:
+    """Write the intact records of ``path`` into a new MCAP ``out``: (end, error, damage)."""
     schemas: Dict[int, Schema] = {}
     channels: Dict[int, Channel] = {}
     counts: Dict[int, int] = {}
     new_schema: Dict[int, int] = {}
     new_channel: Dict[int, int] = {}
-    good_end = 0
-    error = ''
-    with open(path, 'rb') as src, open(out, 'xb') as dst:
-        writer = McapWriter(dst, compression=CompressionType.NONE)
+    scan = McapScan(path, path.name)
+    with open(out, 'xb') as dst:
+        writer = McapWriter(dst, compression=CompressionType.NONE, enable_data_crcs=True)
         writer.start(PROFILE, LIBRARY)
-        reader = StreamReader(src, validate_crcs=True)
         try:
-            for record in reader.records:
+            for record in scan.records():
                 if isinstance(record, Schema):
                     if record.id not in new_schema:
                         schemas[record.id] = record
@@ -229,30 +271,31 @@ def _recover(path: Path, out: Path, table: _TopicTable, stats: FileStats,
                     stats.add(record.log_time)
                 elif isinstance(record, Metadata) and record.name == 'rosbag2':
                     custom.update(_custom_from_record(record))
-                elif isinstance(record, Footer):
-                    break
-                good_end = src.tell()
-        except Exception as exc:  # truncation shows as EOF, struct or CRC errors
+            error = scan.error
+        except Exception as exc:  # a record that parses but is damaged: stop there
             error = f'{type(exc).__name__}: {exc}' if str(exc) else type(exc).__name__
         writer.finish()
         dst.flush()
         os.fsync(dst.fileno())
     for cid, channel in channels.items():
         table.add(channel, schemas.get(channel.schema_id), counts.get(cid, 0))
-    return good_end, error or 'truncated'
+    if not scan.complete and not error:
+        error = 'truncated'
+    return scan.end_B, error, scan.damage
 
 
 def _custom_from_record(record: Metadata) -> Dict[str, str]:
     try:
-        doc = yaml.safe_load(record.metadata.get('serialized_metadata', ''))
+        doc = load_yaml_text(record.metadata.get('serialized_metadata', ''),
+                             'the rosbag2 metadata record')
         return {str(k): str(v) for k, v in (doc.get('custom_data') or {}).items()}
-    except (yaml.YAMLError, AttributeError):
+    except (yaml.YAMLError, YamlRefused, AttributeError):
         return {}
 
 
 def repair_bag(bag_path, keep_damaged: bool = True) -> RepairReport:
     """
-    Make a bag whose recorder died readable again.
+    Make a bag whose recorder died, or whose files have corrupt chunks, readable again.
 
     Parameters
     ----------
@@ -306,12 +349,13 @@ def repair_bag(bag_path, keep_damaged: bool = True) -> RepairReport:
             tmp = path.with_name(name + '.repair.tmp')
             if tmp.exists():
                 tmp.unlink()
-            good_end, error = _recover(path, tmp, table, stats, from_files)
-            lost = path.stat().st_size - good_end
+            good_end, error, damage = _recover(path, tmp, table, stats, from_files)
+            lost = path.stat().st_size - good_end + sum(d.length_B for d in damage)
             if keep_damaged:
                 os.replace(path, path.with_name(name + '.damaged'))
             os.replace(tmp, path)
-            reports.append(FileReport(name, 'recovered', stats.message_count, lost, error))
+            reports.append(FileReport(name, 'recovered', stats.message_count, lost, error,
+                                      damage))
         files.append(stats)
     for key, value in from_files.items():
         custom.setdefault(key, value)

@@ -5,7 +5,8 @@ Layout as ``ros2 bag record -s mcap``: a folder ``<name>/`` holding ``metadata.y
 (version 9) and ``<name>_0.mcap``, ``<name>_1.mcap``, ... Each MCAP file has the ``ros2``
 profile, ``ros2msg`` schemas (so independent readers decode it), ``cdr`` channels whose
 metadata carries ``offered_qos_profiles`` and ``topic_type_hash`` as rosbag2 writes them,
-uncompressed chunks with message indexes, and a summary.
+uncompressed chunks with message indexes, and a summary; chunk, data section and summary
+CRCs (the data section CRC lets repair check a whole file in one pass).
 
 Crash safety: :meth:`BagWriter.flush` closes the chunk in progress, writes it to the file and
 fsyncs, and rewrites a provisional ``metadata.yaml``; everything written before the last flush
@@ -372,7 +373,7 @@ class BagWriter:
         except OSError as exc:
             raise BagWriteError(f'cannot create {self.path / name}: {exc}') from exc
         self._mcap = McapWriter(self._stream, chunk_size=self.chunk_size_B,
-                                compression=CompressionType.NONE)
+                                compression=CompressionType.NONE, enable_data_crcs=True)
         self.files.append(FileStats(name))
         self._channel_ids = {}
         self._schema_ids: Dict[str, int] = {}

@@ -33,6 +33,7 @@ import yaml
 
 from emfc_ros.core.bag import custom_data, read_streams
 from emfc_ros.core.ident.errors import IdentificationError
+from emfc_ros.core.safe_yaml import load_yaml_text, YamlRefused
 
 Progress = Callable[[str, float, str], None]
 PLANT_KEYS = ('load_mass_kg', 'load_changer_coupled')
@@ -46,8 +47,8 @@ class PlantConfigurationError(IdentificationError):
 
 def _yaml_mapping(text: str) -> Dict[str, Any]:
     try:
-        doc = yaml.safe_load(text or '') or {}
-    except yaml.YAMLError:
+        doc = load_yaml_text(text or '', 'bag custom_data') or {}
+    except (yaml.YAMLError, YamlRefused):
         return {}
     return doc if isinstance(doc, dict) else {}
 
@@ -199,9 +200,9 @@ def plant_settings(bag_path: Path) -> Dict[str, Any]:
         ``load_mass_kg`` and ``load_changer_coupled`` when a recorded node had them.
     """
     try:
-        params = yaml.safe_load(custom_data(bag_path).get('emfc_ros.node_parameters', '')
-                                or '{}') or {}
-    except yaml.YAMLError:
+        params = load_yaml_text(custom_data(bag_path).get('emfc_ros.node_parameters', '')
+                                or '{}', 'bag custom_data emfc_ros.node_parameters') or {}
+    except (yaml.YAMLError, YamlRefused):
         return {}
     for node in params.values():
         values = (node or {}).get('ros__parameters', {}) if isinstance(node, dict) else {}

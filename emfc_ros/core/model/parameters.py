@@ -19,6 +19,7 @@ from emfc_ros.core.config import (get_float, get_float_list, get_int, get_mappin
 from emfc_ros.core.errors import ConfigError
 from emfc_ros.core.model.peripherals import (Amplifier, check_monotonic, LoadChanger,
                                              MotorCoefficient, PositionSensor)
+from emfc_ros.core.safe_yaml import load_yaml_file, one_line
 
 #: Length bound used for geometry [m].
 _MAX_LENGTH_M = 1.0
@@ -279,10 +280,9 @@ class BalanceParameters:
             If the file is unreadable, has neither form or holds an invalid value.
         """
         try:
-            with open(path, 'r', encoding='utf-8') as stream:
-                doc = yaml.safe_load(stream)
+            doc = load_yaml_file(path)
         except (OSError, yaml.YAMLError) as exc:
-            raise ConfigError(str(path), f'cannot read the YAML file: {exc}') from exc
+            raise ConfigError(str(path), f'cannot read the YAML file: {one_line(exc)}') from exc
         return cls.from_document(doc)
 
     @classmethod

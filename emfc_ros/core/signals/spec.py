@@ -77,6 +77,7 @@ import yaml
 from emfc_ros.core.config import (get_bool, get_float, get_float_list, get_int, get_mapping,
                                   get_str, get_str_list, join, reject_unknown, unflatten)
 from emfc_ros.core.errors import ConfigError, SignalError, WaveformFileError
+from emfc_ros.core.safe_yaml import load_yaml_file, one_line
 from emfc_ros.core.signals.base import Signal
 from emfc_ros.core.signals.chirp import AFTER_SWEEP, Chirp, METHODS
 from emfc_ros.core.signals.experiment import (ChannelLimits, ChannelPlan, DEFAULT_CHANNELS,
@@ -482,11 +483,11 @@ def load_experiment_file(path: Union[str, Path]) -> Experiment:
     """
     path = Path(path)
     try:
-        doc = yaml.safe_load(path.read_text(encoding='utf-8'))
-    except (OSError, UnicodeDecodeError) as exc:
+        doc = load_yaml_file(path)
+    except OSError as exc:
         raise ConfigError(str(path), f'cannot read file: {exc}') from exc
     except yaml.YAMLError as exc:
-        raise ConfigError(str(path), f'invalid YAML: {exc}') from exc
+        raise ConfigError(str(path), f'invalid YAML: {one_line(exc)}') from exc
     return experiment_from_config(find_experiment_mapping(doc, str(path)), path.parent)
 
 
