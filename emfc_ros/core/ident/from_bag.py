@@ -318,10 +318,11 @@ def refuse_faults(bag_path: Path, measurements: Any, namespace: str, offset: int
         if description is not None:
             faults.extend(faults_from_extra(description.extra))
         topic = f'{namespace}/measurements/description'
-        for doc in yaml.safe_load(custom_data(bag_path).get('emfc_ros.faults', '')) or []:
+        text = custom_data(bag_path).get('emfc_ros.faults', '')
+        for doc in load_yaml_text(text, f'{bag_path} custom data emfc_ros.faults') or []:
             if isinstance(doc, dict) and doc.get('topic', topic) == topic:
                 faults.append(Fault.from_dict(doc))
-    except (ValueError, yaml.YAMLError) as exc:
+    except (ValueError, yaml.YAMLError) as exc:      # YamlRefused is a ValueError
         raise DeviceFaultError(f"the bag's fault record is unreadable ({exc}): the data "
                                'cannot be trusted') from None
     unique = list(dict.fromkeys(faults))
