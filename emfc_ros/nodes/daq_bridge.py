@@ -271,6 +271,7 @@ class DaqBridgeNode(Node):
             except (TypeError, ValueError):     # refused with a reason by _build
                 self._runtime[name] = float(PARAMETERS[name][0])
         self._lock = threading.RLock()
+        self._start_lock = threading.Lock()
         self._error = ''
         self._last_error = ''
         self._state = 'idle'
@@ -326,6 +327,7 @@ class DaqBridgeNode(Node):
                           clock=steady_clock())
         self.create_timer(0.01, self._watchdog_tick, clock=steady_clock())
         self._retry_timer = None
+        self._retry_worker: Optional[threading.Thread] = None
         self._listener_timer = None
         if self._backend is not None and self._param('autostart'):
             if hold:
@@ -367,10 +369,18 @@ class DaqBridgeNode(Node):
         if self._state == 'running' or self._retry_timer is None:
             self._cancel_retry()
             return
+        if self._retry_worker is not None and self._retry_worker.is_alive():
+            return
+        # A device that does not answer costs its request timeouts and retries (about a
+        # second): the attempt runs in a thread, so the executor never waits for it.
+        self._retry_worker = threading.Thread(target=self._retry_attempt, daemon=True,
+                                              name='daq-bridge-retry')
+        self._retry_worker.start()
+
+    def _retry_attempt(self) -> None:
         ok, message = self._start()
         if ok:
             self.get_logger().info(f'device answered: {message}')
-            self._cancel_retry()
         else:
             self.get_logger().warning(message, throttle_duration_sec=30.0)
 
@@ -569,6 +579,10 @@ class DaqBridgeNode(Node):
         self._last_excitation = None
 
     def _start(self) -> Tuple[bool, str]:
+        with self._start_lock:          # a retry in its thread and a ~/start call
+            return self._start_locked()
+
+    def _start_locked(self) -> Tuple[bool, str]:
         if self._backend is None:
             return False, self._error or 'no back-end'
         if self._state == 'running':

@@ -37,7 +37,7 @@ from emfc_ros.core.errors import BlockError
 from emfc_ros.core.safe_yaml import load_yaml_file, one_line, YamlRefused
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, LATCHED_QOS, msg_to_block, msg_to_description, node_diagnostics, steady_clock)
-from emfc_ros.nodes.params import declare_table
+from emfc_ros.nodes.params import declare_table, pending_refusals, refuse_unknown
 from emfc_ros.nodes.spin import node_main
 
 PARAMETERS = {
@@ -66,6 +66,7 @@ class IdentifierNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('identifier', **kwargs)
         refused = declare_table(self, PARAMETERS, LIMITS)
+        refused += refuse_unknown(self)
         self._lock = threading.Lock()
         self._busy = False
         self._accumulating = False
@@ -282,8 +283,12 @@ class IdentifierNode(Node):
                   'runs': self._runs, 'last_error': self._last_error}
         values.update(self._tracker.counters())
         level = DiagnosticStatus.WARN if self._last_error else DiagnosticStatus.OK
-        self._pub_diag.publish(node_diagnostics(self, 'identification', level,
-                                                self._last_error or 'ok', values))
+        message = self._last_error or 'ok'
+        refused = pending_refusals(self)
+        if refused:         # a refused or unknown start-up value: an error state
+            level, message = DiagnosticStatus.ERROR, refused
+        self._pub_diag.publish(node_diagnostics(self, 'identification', level, message,
+                                                values))
 
 
 main = node_main(IdentifierNode, 'identifier')

@@ -50,7 +50,7 @@ from emfc_ros.core.model.load import loaded
 from emfc_ros.core.model.parameters import BalanceParameters
 from emfc_ros.core.paths import config_file
 from emfc_ros.nodes.convert import CONTROL_QOS, node_diagnostics
-from emfc_ros.nodes.params import declare_table
+from emfc_ros.nodes.params import declare_table, refuse_unknown
 from emfc_ros.nodes.spin import node_main
 
 DEFAULT_BALANCE = 'balance_default.yaml'
@@ -105,6 +105,7 @@ class PositionControllerNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('position_controller', **kwargs)
         refused = declare_table(self, PARAMETERS, LIMITS, READ_ONLY)
+        refused += refuse_unknown(self)
         self._output = str(self._param('command_output'))
         self._joint = str(self._param('joint_name'))
         self._error = ''

@@ -61,7 +61,7 @@ from emfc_ros.core.device.faults import faults_from_extra
 from emfc_ros.core.errors import ConfigError
 from emfc_ros.core.safe_yaml import load_yaml_text, one_line, YamlRefused
 from emfc_ros.nodes.convert import LATCHED_QOS, node_diagnostics
-from emfc_ros.nodes.params import declare_table, pending_refusals
+from emfc_ros.nodes.params import declare_table, pending_refusals, refuse_unknown
 from emfc_ros.nodes.spin import node_logger, node_main
 
 EXCLUDED_TOPICS = ('/rosout', '/parameter_events')
@@ -282,6 +282,7 @@ class RecorderNode(Node):
         super().__init__('recorder', **kwargs)
         # Floats accept integers too (`-p flush_period_s:=2`), taken as floats.
         refused = declare_table(self, PARAMETERS, LIMITS)
+        refused += refuse_unknown(self, ['topics'])
         self.declare_parameter('topics', Parameter.Type.STRING_ARRAY,
                                ParameterDescriptor(description=TOPICS_TEXT))
         self._state = 'idle'

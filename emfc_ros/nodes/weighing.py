@@ -50,7 +50,7 @@ from emfc_ros.core.weighing import (compensation_force_N, DynamicWeigher, Readin
                                     ReadingFilter, WeighingCalibration, WeighingError)
 from emfc_ros.nodes.convert import (BLOCK_QOS, diagnostic_status, LATCHED_QOS, msg_to_block,
                                     msg_to_description, node_diagnostics, steady_clock)
-from emfc_ros.nodes.params import declare_table
+from emfc_ros.nodes.params import declare_table, refuse_unknown
 from emfc_ros.nodes.spin import node_main
 
 DEFAULT_BALANCE = 'balance_default.yaml'
@@ -124,6 +124,7 @@ class WeighingNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('weighing', **kwargs)
         refused = declare_table(self, PARAMETERS, LIMITS)
+        refused += refuse_unknown(self)
         self._config_error = ''   # configuration (balance, parameters): nothing works
         self._stream_error = ''   # description without the channels: blocks are ignored
         self._last_error = ''     # the latest problem of any kind, for the diagnostics

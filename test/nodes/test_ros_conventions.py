@@ -271,7 +271,8 @@ def test_refused_startup_value_keeps_node_running(name, value, needle, executor,
     assert proc.stop() == 0, proc.output()
 
 
-@pytest.mark.parametrize('name', ['plant_simulator', 'daq_bridge', 'signal_generator'])
+@pytest.mark.parametrize('name', ['plant_simulator', 'daq_bridge', 'signal_generator', 'recorder',
+                                  'weighing', 'identifier', 'position_controller'])
 def test_an_unknown_parameter_name_is_refused_not_ignored(name, executor, ros_context,
                                                           processes):
     probe = RosoutProbe(ros_context)
