@@ -277,7 +277,7 @@ PACKET_STATISTICS = 6          # <linux/if_packet.h>
 
 def classify(frame: bytes) -> str:
     """
-    One frame as ``kind src -> dst`` (IPv4 UDP/TCP with ports, ARP, IPv6, other).
+    One frame as ``kind src -> dst`` (IPv4 UDP/TCP with ports, ICMP, ARP, IPv6, other).
 
     Parameters
     ----------
@@ -288,7 +288,8 @@ def classify(frame: bytes) -> str:
     -------
     str
         For example ``'udp 10.231.0.2:7413 -> 10.231.0.1:7410'``, ``'arp'``,
-        ``'ipv6 -> ff02::16'``, ``'ip-fragment 10.231.0.1 -> 10.231.0.2'``.
+        ``'ipv6 -> ff02::16'``, ``'ip-fragment 10.231.0.1 -> 10.231.0.2'``, ``'icmp 3/3
+        10.231.0.1 -> 10.231.0.2'`` (type/code: port unreachable).
     """
     if len(frame) < 14:
         return 'short'
@@ -311,6 +312,8 @@ def classify(frame: bytes) -> str:
     if proto in (6, 17) and len(payload) >= ihl + 4:
         sport, dport = struct.unpack('!HH', payload[ihl:ihl + 4])
         return f'{"udp" if proto == 17 else "tcp"} {src}:{sport} -> {dst}:{dport}'
+    if proto == 1 and len(payload) >= ihl + 2:
+        return f'icmp {payload[ihl]}/{payload[ihl + 1]} {src} -> {dst}'
     return f'ip-proto-{proto} {src} -> {dst}'
 
 

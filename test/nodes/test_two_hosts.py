@@ -303,8 +303,8 @@ def off_link(frames, pair, device_port='5555'):
     """
     Captured frame kinds that are not unicast between the two addresses of the link.
 
-    Allowed: ARP, and IPv4 between the two addresses (UDP, its fragments, ICMP: the port
-    unreachable answers to Fast DDS probing participant ports nobody uses). Anything else is
+    Allowed: ARP, and IPv4 between the two addresses (UDP, its fragments, ICMP port
+    unreachable: the answers to Fast DDS probing participant ports nobody uses). Anything else is
     listed: multicast (``SUBNET`` sends discovery to 239.255.0.1), broadcast, IPv6, other
     addresses, and the device protocol's port (it belongs on the bridge computer's
     loopback).
@@ -313,7 +313,7 @@ def off_link(frames, pair, device_port='5555'):
     for kind, (count, _) in frames.items():
         if kind == 'arp':
             continue
-        match = re.fullmatch(r'(udp|ip-fragment|ip-proto-1) ([\d.]+)(?::(\d+))? -> '
+        match = re.fullmatch(r'(udp|ip-fragment|icmp 3/3) ([\d.]+)(?::(\d+))? -> '
                              r'([\d.]+)(?::(\d+))?', kind)
         if not match or {match.group(2), match.group(4)} != set(pair) or \
                 device_port in (match.group(3), match.group(5)):
@@ -386,6 +386,16 @@ def runs(tmp_path_factory):
 
 
 # -- the checks ---------------------------------------------------------------------------
+
+
+def test_the_options_file_is_the_bridge_plan_s():
+    """The README's --options file holds the identification the bridge run plan gives."""
+    options = yaml.safe_load((REPO / 'config' / 'identification_bridge_emulator.yaml')
+                             .read_text())
+    plan = yaml.safe_load((REPO / 'config' / 'experiment_bridge_emulator.yaml').read_text())
+    identification = dict(plan['run']['identification'])
+    assert identification.pop('enabled') is True
+    assert options == identification
 
 
 @pytest.mark.slow
