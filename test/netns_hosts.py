@@ -25,6 +25,7 @@ import ipaddress
 import json
 import os
 from pathlib import Path
+import select
 import shutil
 import signal
 import socket
@@ -105,9 +106,13 @@ class Host:
              script], stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
             text=True)
         self.pid = self._holder.pid
-        line = self._holder.stdout.readline()      # bounded: the script ends or says ready
+        ready, _, _ = select.select([self._holder.stdout], [], [], COMMAND_TIMEOUT_S)
+        line = self._holder.stdout.readline() if ready else ''
         if line.strip() != 'ready':
-            err = self._holder.stderr.read() if self._holder.poll() is not None else ''
+            if self._holder.poll() is None:
+                os.kill(self.pid, signal.SIGKILL)
+                self._holder.wait(timeout=COMMAND_TIMEOUT_S)
+            err = self._holder.stderr.read()
             self.close()
             raise HostSetupError(f'host {name}: could not make its namespaces (unshare '
                                  f'--net --mount, tmpfs on /dev/shm, lo up): {err.strip()}')
