@@ -13,6 +13,10 @@ experiment from its first sample. Record with
 
     emfc-device-emulator --port 5555 &          # or the real device
     ros2 launch emfc_ros hardware_experiment.launch.py device_port:=5555
+
+Every launch file takes ``discovery_range:=`` (the nodes' ``ROS_AUTOMATIC_DISCOVERY_RANGE``;
+default ``LOCALHOST``, discovery on this computer only); ``ROS_STATIC_PEERS`` set in the
+shell reaches the nodes as it is (README, Two computers).
 """
 
 from launch import LaunchDescription
@@ -23,10 +27,14 @@ from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
 
 
+#: Values of ROS_AUTOMATIC_DISCOVERY_RANGE (rcl).
+DISCOVERY_RANGES = ['LOCALHOST', 'SUBNET', 'OFF', 'SYSTEM_DEFAULT']
+
+
 def generate_launch_description():
     """Describe the wall-paced signal generator and the udp daq_bridge in namespace emfc."""
     share = FindPackageShare('emfc_ros')
-    env = {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+    env = {'ROS_AUTOMATIC_DISCOVERY_RANGE': LaunchConfiguration('discovery_range')}
     return LaunchDescription([
         DeclareLaunchArgument(
             'experiment_file',
@@ -45,6 +53,12 @@ def generate_launch_description():
         DeclareLaunchArgument('min_subscribers', default_value='1',
                               description='the device starts once this many subscriptions to '
                                           '/emfc/measurements (a recorder) matched; 0: at once'),
+        DeclareLaunchArgument(
+            'discovery_range', default_value='LOCALHOST', choices=DISCOVERY_RANGES,
+            description='ROS_AUTOMATIC_DISCOVERY_RANGE of the nodes: LOCALHOST keeps '
+                        'discovery on this computer (ROS_STATIC_PEERS in the environment '
+                        'adds named computers: README, Two computers); SUBNET multicasts '
+                        'it on every network this computer is on'),
         Node(
             package='emfc_ros', executable='daq_bridge', name='daq_bridge',
             namespace='emfc', output='screen', additional_env=env,

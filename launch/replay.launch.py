@@ -10,6 +10,10 @@ recorder, the identifier) gets the bag from its first block whichever was starte
 ``min_subscribers:=0`` starts at once.
 
     ros2 launch emfc_ros replay.launch.py bag:=out/identification-.../bag pacing:=receive_time
+
+Every launch file takes ``discovery_range:=`` (the nodes' ``ROS_AUTOMATIC_DISCOVERY_RANGE``;
+default ``LOCALHOST``, discovery on this computer only); ``ROS_STATIC_PEERS`` set in the
+shell reaches the nodes as it is (README, Two computers).
 """
 
 from launch import LaunchDescription
@@ -19,9 +23,13 @@ from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 
 
+#: Values of ROS_AUTOMATIC_DISCOVERY_RANGE (rcl).
+DISCOVERY_RANGES = ['LOCALHOST', 'SUBNET', 'OFF', 'SYSTEM_DEFAULT']
+
+
 def generate_launch_description():
     """Describe the daq_bridge with the replay back-end in namespace emfc."""
-    env = {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+    env = {'ROS_AUTOMATIC_DISCOVERY_RANGE': LaunchConfiguration('discovery_range')}
     return LaunchDescription([
         DeclareLaunchArgument('bag', description='the recorded bag folder'),
         DeclareLaunchArgument('topic', default_value='',
@@ -32,6 +40,12 @@ def generate_launch_description():
         DeclareLaunchArgument('min_subscribers', default_value='1',
                               description='the replay starts once this many subscriptions to '
                                           '/emfc/measurements matched; 0: at once'),
+        DeclareLaunchArgument(
+            'discovery_range', default_value='LOCALHOST', choices=DISCOVERY_RANGES,
+            description='ROS_AUTOMATIC_DISCOVERY_RANGE of the nodes: LOCALHOST keeps '
+                        'discovery on this computer (ROS_STATIC_PEERS in the environment '
+                        'adds named computers: README, Two computers); SUBNET multicasts '
+                        'it on every network this computer is on'),
         Node(
             package='emfc_ros', executable='daq_bridge', name='daq_bridge',
             namespace='emfc', output='screen', additional_env=env,

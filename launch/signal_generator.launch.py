@@ -2,7 +2,8 @@
 Launch the signal generator in namespace ``emfc`` (needs a full ROS 2 Jazzy install).
 
 Arguments: ``experiment_file`` (YAML; default the shipped identification trajectory),
-``pacing`` (``wall`` or ``consumer``), ``block_size`` (samples per block).
+``pacing`` (``wall`` or ``consumer``), ``block_size`` (samples per block),
+``discovery_range`` (the node's ``ROS_AUTOMATIC_DISCOVERY_RANGE``, default ``LOCALHOST``).
 
     ros2 launch emfc_ros signal_generator.launch.py pacing:=wall
 """
@@ -13,6 +14,10 @@ from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
+
+
+#: Values of ROS_AUTOMATIC_DISCOVERY_RANGE (rcl).
+DISCOVERY_RANGES = ['LOCALHOST', 'SUBNET', 'OFF', 'SYSTEM_DEFAULT']
 
 
 def generate_launch_description():
@@ -26,6 +31,12 @@ def generate_launch_description():
                               description="'wall' or 'consumer'"),
         DeclareLaunchArgument('block_size', default_value='1000',
                               description='samples per excitation block'),
+        DeclareLaunchArgument(
+            'discovery_range', default_value='LOCALHOST', choices=DISCOVERY_RANGES,
+            description='ROS_AUTOMATIC_DISCOVERY_RANGE of the nodes: LOCALHOST keeps '
+                        'discovery on this computer (ROS_STATIC_PEERS in the environment '
+                        'adds named computers: README, Two computers); SUBNET multicasts '
+                        'it on every network this computer is on'),
         Node(
             package='emfc_ros',
             executable='signal_generator',
@@ -37,6 +48,7 @@ def generate_launch_description():
                 'pacing': LaunchConfiguration('pacing'),
                 'block_size': ParameterValue(LaunchConfiguration('block_size'), value_type=int),
             }],
-            additional_env={'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'},
+            additional_env={'ROS_AUTOMATIC_DISCOVERY_RANGE':
+                            LaunchConfiguration('discovery_range')},
         ),
     ])

@@ -12,6 +12,10 @@ with ``use_sim_time:=true`` and ``/clock`` among its topics (README, plant_simul
 ``ros2 bag record -s mcap /emfc/excitation /emfc/measurements /clock ...``.
 
     ros2 launch emfc_ros sim_experiment.launch.py load_mass_kg:=0.1274
+
+Every launch file takes ``discovery_range:=`` (the nodes' ``ROS_AUTOMATIC_DISCOVERY_RANGE``;
+default ``LOCALHOST``, discovery on this computer only); ``ROS_STATIC_PEERS`` set in the
+shell reaches the nodes as it is (README, Two computers).
 """
 
 from launch import LaunchDescription
@@ -22,10 +26,14 @@ from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
 
 
+#: Values of ROS_AUTOMATIC_DISCOVERY_RANGE (rcl).
+DISCOVERY_RANGES = ['LOCALHOST', 'SUBNET', 'OFF', 'SYSTEM_DEFAULT']
+
+
 def generate_launch_description():
     """Describe the signal generator and the plant simulator in namespace emfc."""
     share = FindPackageShare('emfc_ros')
-    env = {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+    env = {'ROS_AUTOMATIC_DISCOVERY_RANGE': LaunchConfiguration('discovery_range')}
     return LaunchDescription([
         DeclareLaunchArgument(
             'experiment_file',
@@ -43,6 +51,12 @@ def generate_launch_description():
                               description='the experiment starts once this many subscriptions '
                                           'to /emfc/measurements (a recorder) matched; 0: at '
                                           'once'),
+        DeclareLaunchArgument(
+            'discovery_range', default_value='LOCALHOST', choices=DISCOVERY_RANGES,
+            description='ROS_AUTOMATIC_DISCOVERY_RANGE of the nodes: LOCALHOST keeps '
+                        'discovery on this computer (ROS_STATIC_PEERS in the environment '
+                        'adds named computers: README, Two computers); SUBNET multicasts '
+                        'it on every network this computer is on'),
         Node(
             package='emfc_ros', executable='plant_simulator', name='plant_simulator',
             namespace='emfc', output='screen', additional_env=env,

@@ -3,7 +3,14 @@ emfc-device-emulator: the UDP device emulator (simulated balance inside) as a pr
 
 ``emfc-device-emulator [--bind 127.0.0.1] [--port N] [--config balance.yaml] [--channels 4]
 [--faults drop=0.01,duplicate=0.01,reorder=0.01,corrupt=0.01,delay_ms=5,stall_s=2,
-stall_after_s=1,die_after_s=30] [--seed S] [--duration-s T] [--allow-remote]``
+stall_after_s=1,die_after_s=30] [--seed S] [--duration-s T] [--allow-remote]
+[--load-mass-kg KG|balance] [--load-changer-coupled] [--no-noise]``
+
+The simulated balance carries ``--load-mass-kg`` on its pan (``balance``: the mass pieces
+that hold the lever at 0 with 0 V on the coil, as ``emfc-experiment`` loads its emulator;
+default 0: the empty pan, whose lever rests on its stop at 0 V). ``--no-noise`` leaves out
+the sensor and amplifier noise, so that two runs of one excitation give the same samples
+wherever the excitation starts on the device clock.
 
 Prints the bound UDP port alone on the first line of stdout (``--port 0``, the default,
 picks a free one), then serves until SIGINT or SIGTERM, ``--duration-s`` or the injected
@@ -21,7 +28,7 @@ import signal
 import sys
 import threading
 import time
-from typing import List, Optional
+from typing import Any, List, Optional
 
 from emfc_ros.core.control.loop_config import loop_config
 from emfc_ros.core.device.emulator import check_bind_host, DeviceEmulator, Faults
@@ -55,9 +62,31 @@ def _parser() -> argparse.ArgumentParser:
                              'multiple)')
     parser.add_argument('--control-notch-Hz', type=float, default=410.0,
                         help='notch of the in-loop controller [Hz] (0: none)')
+    parser.add_argument('--load-mass-kg', default='0',
+                        help="mass on the pan [kg], or 'balance': the mass that holds the "
+                             'lever at 0 with 0 V on the coil (default 0: empty pan)')
+    parser.add_argument('--load-changer-coupled', action='store_true',
+                        help="the load changer's moving mass rides on the pan")
+    parser.add_argument('--no-noise', action='store_true',
+                        help='no sensor and amplifier noise (deterministic samples)')
     parser.add_argument('--allow-remote', action='store_true',
                         help='permit a non-loopback bind address (exposes the emulator)')
     return parser
+
+
+def _load_mass_kg(text: str, params: Any, coupled: bool) -> float:
+    """The ``--load-mass-kg`` value [kg]: a number from 0 to 100, or ``balance``."""
+    if text.strip() == 'balance':
+        from emfc_ros.core.sim.balancing import balancing_load_mass_kg
+        return balancing_load_mass_kg(params, coupled)
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"--load-mass-kg must be a mass in kg or 'balance', got {text!r}") \
+            from None
+    if not 0.0 <= value <= 100.0:
+        raise ValueError(f'--load-mass-kg must be from 0 to 100 kg, got {text}')
+    return value
 
 
 def main(argv: Optional[List[str]] = None) -> int:
@@ -87,7 +116,10 @@ def main(argv: Optional[List[str]] = None) -> int:
             raise ValueError(f'--port must be in [0, 65535], got {args.port}')
         faults = Faults.parse(args.faults)
         params = load_parameters(args.config)
-        options = {}
+        options = {'load_mass_kg': _load_mass_kg(args.load_mass_kg, params,
+                                                 args.load_changer_coupled),
+                   'load_changer_coupled': bool(args.load_changer_coupled),
+                   'noise': not args.no_noise}
         if args.control_crossover_Hz > 0.0:
             options['control'] = loop_config({'crossover_Hz': args.control_crossover_Hz,
                                               'rate_Hz': args.control_rate_Hz,

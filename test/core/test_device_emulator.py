@@ -429,6 +429,8 @@ def test_cli_refuses_non_loopback_and_bad_options():
     assert main(['--bind', '192.0.2.1']) == 2
     assert main(['--bind', 'example.org']) == 2
     assert main(['--faults', 'drop=x']) == 2
+    for mass in ('-1', 'abc', 'nan', '1e300', 'inf'):
+        assert main(['--load-mass-kg', mass]) == 2, mass
 
 
 def test_cli_prints_its_port_serves_and_dies_as_injected(backends):

@@ -162,7 +162,10 @@ def test_defaults_and_documented_lines_give_nodes_with_the_right_parameters(
             assert proc.cmd[:6] == [str(ros_harness.resolve_ros2run(PACKAGE, proc.executable)),
                                     '--ros-args', '-r', f'__node:={proc.executable}',
                                     '-r', '__ns:=/emfc'], (where, proc.cmd)
-            assert proc.additional_env == {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+            # Loopback-only discovery unless the line says otherwise (discovery_range).
+            given = dict(a.split(':=', 1) for a in args)
+            assert proc.additional_env == {
+                'ROS_AUTOMATIC_DISCOVERY_RANGE': given.get('discovery_range', 'LOCALHOST')}
             declared = NODE_PARAMETERS[proc.executable]
             for entry in proc.parameters:
                 if isinstance(entry, str):                  # a params file
@@ -227,6 +230,31 @@ def test_the_stand_in_behaves_like_ros2_launch(stub, tmp_path):
     missing = evaluate(stub, tmp_path, hardware, ['bridge_params_file:=/nonexistent.yaml'])
     assert missing.context.warnings == ['Parameter file path is not a file: /nonexistent.yaml']
     assert '/nonexistent.yaml' not in missing.processes[0].cmd
+    # choices: a value outside them is an error naming the valid ones; a bad declaration
+    # fails at once.
+    with pytest.raises(RuntimeError, match='Argument "discovery_range" provided value '
+                                           '"subnet" is not valid. Valid options are'):
+        evaluate(stub, tmp_path, hardware, ['discovery_range:=subnet'])
+    from launch.actions import DeclareLaunchArgument
+    with pytest.raises(RuntimeError, match='choices arg is empty'):
+        DeclareLaunchArgument('a', default_value='x', choices=[])
+    with pytest.raises(RuntimeError, match='is not in provided choices'):
+        DeclareLaunchArgument('a', default_value='x', choices=['y'])
+    assert DeclareLaunchArgument('a', default_value='x', description='A',
+                                 choices=['x']).description == "A. Valid choices are: ['x']"
+
+
+@pytest.mark.parametrize('file_name', LAUNCH_FILES)
+def test_the_discovery_range_is_loopback_unless_chosen(stub, tmp_path, file_name):
+    args = ['bag:=b'] if file_name == 'replay.launch.py' else []
+    for value in ('LOCALHOST', 'SUBNET', 'OFF', 'SYSTEM_DEFAULT', None):
+        line = args + ([f'discovery_range:={value}'] if value else [])
+        launched = evaluate(stub, tmp_path, file_name, line)
+        for proc in launched.processes:
+            assert proc.additional_env == {
+                'ROS_AUTOMATIC_DISCOVERY_RANGE': value or 'LOCALHOST'}, (file_name, value)
+            # Only the range is set: ROS_STATIC_PEERS and ROS_DOMAIN_ID come from the shell.
+            assert not {'ROS_STATIC_PEERS', 'ROS_DOMAIN_ID'} & set(proc.additional_env)
 
 
 @pytest.mark.parametrize('source', [
@@ -237,7 +265,7 @@ def test_the_stand_in_behaves_like_ros2_launch(stub, tmp_path):
     'from launch_ros.actions import Node\n'
     "Node(package='emfc_ros', executable='recorder', respawn=True)",
     'from launch.actions import DeclareLaunchArgument\n'
-    "DeclareLaunchArgument('a', default_value='x', choices=['x'])",
+    "DeclareLaunchArgument('a', default_value='x', condition=None)",
     'from launch.substitutions import LaunchConfiguration\n'
     "LaunchConfiguration('a', default='x')",
     'from launch_ros.parameter_descriptions import ParameterValue\n'
