@@ -18,6 +18,7 @@ import json
 from pathlib import Path
 import re
 import shlex
+import shutil
 import subprocess
 import sys
 
@@ -130,6 +131,12 @@ def contiguous(blocks):
 def test_the_install_lines_start_the_generator_on_the_shipped_trajectory(
         prefix, tmp_path, processes, executor, ros_context):
     argv = readme_lines.readme_argv(prefix)
+    # `export AMENT_PREFIX_PATH=$VIRTUAL_ENV` and LOCALHOST discovery, as the block says.
+    env = ros_harness.child_environment()
+    assert env['AMENT_PREFIX_PATH'].split(':')[0] == sys.prefix
+    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+    program = Path(shutil.which(as_started(argv)[0], path=env['PATH']))
+    assert program.parent in (Path(sys.prefix, 'bin'), Path(sys.prefix, 'lib', 'emfc_ros'))
     observer = Observer(ros_context, '/')
     executor.add_node(observer.node)
     generator = processes.start(as_started(argv), cwd=tmp_path)
@@ -383,3 +390,16 @@ def test_a_benchmark_as_typed():
             results.write_bytes(kept)
         elif results.is_file():
             results.unlink()
+
+
+def test_the_test_tool_with_pytest_args_as_typed():
+    """``./tools/test.sh [pytest args]`` with a small test file as the argument."""
+    assert readme_lines.readme_command('./tools/test.sh [pytest args]')
+    readme_lines.check_tools_venv()
+    result = run(['./tools/test.sh', 'test/test_core_purity.py'], cwd=REPO, timeout_s=600,
+                 env={'EMFC_VENV': sys.prefix})
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
+    assert 'setup_env:' not in result.stderr, result.stderr
+    assert re.search(r'\b\d+ passed\b', result.stdout) and 'failed' not in result.stdout
+    # The tool says how it isolated DDS: the session's domain id, loopback only.
+    assert f'ROS_DOMAIN_ID={ros_harness.session_domain_id()}' in result.stderr
