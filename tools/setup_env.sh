@@ -2,10 +2,18 @@
 # Create or refresh the virtual environment .venv (or $EMFC_VENV) with emfc_ros installed
 # the way a user installs it (`pip install .`, pulling the ROS 2 Jazzy wheels from PyPI),
 # plus what the tests and benchmarks need. Safe to run again: dependencies are installed
-# once per change of setup.py or of this script; the package itself every time.
+# once per change of setup.py or of this script, the package itself once per change of its
+# sources (a hash of every installed file: emfc_ros/, config/, launch/, lib_wrappers/,
+# resource/, setup.py, setup.cfg, package.xml). A current venv costs well under a second
+# and prints nothing. `setup_env.sh --check` changes nothing: exit 0 when the venv is
+# current, 1 (saying what is stale) when this script would install something.
 set -euo pipefail
 here=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 venv=${EMFC_VENV:-$here/.venv}
+check=0
+if [ "${1:-}" = --check ]; then
+  check=1
+fi
 
 py=${PYTHON:-}
 if [ -z "$py" ]; then
@@ -32,22 +40,51 @@ fi
 # lines only, keep everything else (errors included).
 quiet_pip() { grep -v 'is ignored: it is neither a file nor a directory' || true; }
 
+deps_stamp="$venv/.emfc-deps-$(cat "$here/setup.py" "$here/tools/setup_env.sh" | sha256sum | cut -c1-16)"
+package_hash() {
+  # contents, names and modes of every file the package installs
+  local sources=(emfc_ros config launch lib_wrappers resource setup.py setup.cfg package.xml)
+  (cd "$here" &&
+   find "${sources[@]}" -type f ! -path '*/__pycache__/*' ! -name '*.pyc' -print0 |
+     LC_ALL=C sort -z | xargs -0 sha256sum &&
+   find "${sources[@]}" -type f ! -path '*/__pycache__/*' ! -name '*.pyc' -printf '%m %p\n' |
+     LC_ALL=C sort) | sha256sum | cut -c1-16
+}
+package_stamp="$venv/.emfc-package-$(package_hash)"
+if [ "$check" = 1 ]; then
+  stale=()
+  [ -x "$venv/bin/python" ] || stale+=("no virtual environment at $venv")
+  [ -f "$deps_stamp" ] || stale+=("dependencies not installed for this setup.py")
+  [ -f "$package_stamp" ] && [ -x "$venv/bin/emfc-experiment" ] ||
+    stale+=("emfc_ros not installed from the current sources")
+  if [ ${#stale[@]} -gt 0 ]; then
+    printf 'setup_env --check: %s\n' "${stale[@]}" >&2
+    exit 1
+  fi
+  exit 0
+fi
+
 if [ ! -x "$venv/bin/python" ]; then
   echo "setup_env: creating $venv" >&2
   "$py" -m venv "$venv"
 fi
-stamp="$venv/.emfc-deps-$(cat "$here/setup.py" "$here/tools/setup_env.sh" | sha256sum | cut -c1-16)"
-if [ ! -f "$stamp" ]; then
+if [ ! -f "$deps_stamp" ]; then
   echo "setup_env: installing dependencies into $venv (first run takes a few minutes)" >&2
   # colcon needs setuptools<80 (design brief section 2).
   "$venv/bin/python" -m pip install -q 'setuptools<80' wheel 2>&1 | quiet_pip
   "$venv/bin/python" -m pip install -q "$here[fast,plot,test]" \
     'colcon-common-extensions' 'flake8>=6' 'flake8-quotes' 'flake8-import-order' \
     'flake8-docstrings' 'pep8-naming' 2>&1 | quiet_pip
-  rm -f "$venv"/.emfc-deps-*
-  touch "$stamp"
+  rm -f "$venv"/.emfc-deps-* "$venv"/.emfc-package-*
+  touch "$deps_stamp"
 fi
 # The package itself, non-editable so that its data files land in $venv/share and
-# $venv/lib/emfc_ros as `pip install .` puts them for users.
-"$venv/bin/python" -m pip install -q --no-deps --no-build-isolation --force-reinstall "$here" \
-  2>&1 | quiet_pip
+# $venv/lib/emfc_ros as `pip install .` puts them for users; again only when its sources
+# changed (or the install is gone).
+if [ ! -f "$package_stamp" ] || [ ! -x "$venv/bin/emfc-experiment" ]; then
+  echo "setup_env: installing emfc_ros into $venv" >&2
+  rm -f "$venv"/.emfc-package-*
+  "$venv/bin/python" -m pip install -q --no-deps --no-build-isolation --force-reinstall \
+    "$here" 2>&1 | quiet_pip
+  touch "$package_stamp"
+fi

@@ -24,13 +24,14 @@ from pathlib import Path
 import signal
 import sys
 import time
-from typing import Any, Dict, List, Mapping, Optional, Tuple
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import yaml
 
 from emfc_ros.core.errors import ConfigError
 from emfc_ros.core.paths import config_file
-from emfc_ros.core.run_plan import load_plan, RunPlan
+from emfc_ros.core.run_plan import load_plan, runner_state_wall_rate_Hz, RunPlan
+from emfc_ros.core.stream_counts import CUSTOM_DATA_KEY, markdown, problems
 
 DEFAULT_PLAN = 'experiment_default.yaml'
 
@@ -109,6 +110,8 @@ def _plan_document(plan: RunPlan, load_kg: float) -> dict:
     if plan.target == 'simulator':
         doc['simulator']['balance_file'] = str(plan.simulator.balance_file or '')
         doc['simulator']['load_mass_kg_used'] = load_kg
+        doc['simulator']['max_state_wall_rate_Hz_used'] = runner_state_wall_rate_Hz(
+            plan.simulator, plan.experiment['sample_rate_Hz'], plan.block_size)
         doc.pop('bridge')
     else:
         doc.pop('simulator')
@@ -210,6 +213,55 @@ def bag_custom_data(plan: RunPlan, load_kg: float, coupled: bool) -> dict:
             'emfc_ros.plant_configuration': {
                 'load_mass_kg': float(load_kg), 'load_changer_coupled': bool(coupled),
                 'source': source}}
+
+
+def stream_counts(plan: RunPlan, total: int, rate: float, publishers: Sequence[Any],
+                  written: Mapping[str, int]) -> List[Any]:
+    """
+    The message accounting of a run, per recorded topic.
+
+    Parameters
+    ----------
+    plan : RunPlan
+        The plan.
+    total : int
+        Samples in the experiment.
+    rate : float
+        Sample rate [Hz].
+    publishers : sequence
+        The run's nodes with ``published_counts()`` (device node, signal generator).
+    written : Mapping
+        Messages the recorder wrote per topic.
+
+    Returns
+    -------
+    list of emfc_ros.core.stream_counts.StreamCount
+        One per recorded topic, in topic order; ``due`` where the experiment defines it
+        (every block stream of the generator, and on the simulator the plant's streams, its
+        ``/clock`` and its joint states).
+    """
+    from emfc_ros.core.stream_counts import states_due, StreamCount
+
+    ns = plan.namespace
+    published: Dict[str, dict] = {}
+    for node in publishers:
+        for topic, entry in node.published_counts().items():
+            published[topic if topic.startswith('/') else f'{ns}/{topic}'] = entry
+    sizes = [min(plan.block_size, total - i) for i in range(0, total, plan.block_size)]
+    due = {f'{ns}/excitation': len(sizes)}
+    if plan.target == 'simulator':
+        # Owner mode: one answer (block and /clock tick) per excitation block, and the joint
+        # states of the answered samples; on the bridge the device streams without an end.
+        due.update({topic: len(sizes) for topic in published
+                    if topic == '/clock' or topic.startswith(f'{ns}/measurements')})
+        due[f'{ns}/joint_states'] = states_due(sizes, rate, plan.simulator.state_rate_Hz)
+    out = []
+    for topic in sorted(written):
+        entry = published.get(topic, {})
+        out.append(StreamCount(topic, int(written[topic]), entry.get('published'),
+                               int(entry.get('repeated', 0)), int(entry.get('decimated', 0)),
+                               due.get(topic) if entry else None))
+    return out
 
 
 class ExperimentFault(RuntimeError):
@@ -350,6 +402,8 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
                 Parameter('noise', value=bool(plan.simulator.noise)),
                 Parameter('quantisation', value=bool(plan.simulator.quantisation)),
                 Parameter('state_rate_Hz', value=float(plan.simulator.state_rate_Hz)),
+                Parameter('max_state_wall_rate_Hz', value=runner_state_wall_rate_Hz(
+                    plan.simulator, rate, plan.block_size)),
                 Parameter('publish_groups', value=False)])
             device_name = 'plant_simulator'
         nodes.append(device_node)
@@ -542,6 +596,11 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
 
         spin_until(settled, 10.0)
         written = recorder.written_messages()
+        # No silent loss: what each stream owed, published, left out and recorded, in the
+        # bag's custom data (added to the open bag) and in summary.md.
+        counts = stream_counts(plan, total, rate, (device_node, generator), written)
+        recorder.set_parameters([Parameter('custom_data', value=yaml.safe_dump(
+            {CUSTOM_DATA_KEY: {c.topic: c.as_dict() for c in counts}}, sort_keys=False))])
         answer = call('recorder/stop', timeout_s=60.0)
         if not answer.success:
             raise RuntimeError(f'recorder did not close the bag: {answer.message}')
@@ -549,7 +608,7 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
                 'load_mass_kg': load_kg, 'load_changer_coupled': coupled,
                 'measurement_blocks_received': seen['blocks'],
                 'measurement_stream': tracker.counters(),
-                'written_messages': written}
+                'written_messages': written, 'stream_counts': counts}
         if on_bridge:
             info['excitation_offset_samples'] = int(seen['offset'])
             info['device'] = _device_summary(plan, emulator)
@@ -809,9 +868,17 @@ def _run(args: argparse.Namespace, ctrl_c: CtrlC) -> int:
                f'{info["measurement_stream"]}.', '',
                '| phase | wall time [s] |', '|---|---|']
     summary += [f'| {name} | {seconds:.2f} |' for name, seconds in timing.items()]
+    summary += ['', '## Messages per stream', '',
+                f"Also in the bag's custom data `{CUSTOM_DATA_KEY}`.", '']
+    summary += markdown(info['stream_counts'])
     summary += [''] + lines
     (out / 'summary.md').write_text('\n'.join(summary) + '\n')
     print('\n'.join(summary))
+    lost = problems(info['stream_counts'])
+    if lost:
+        print('emfc-experiment: warning: messages lost or unaccounted for: '
+              + '; '.join(lost) + f' (summary.md, bag custom data {CUSTOM_DATA_KEY})',
+              file=sys.stderr)
     if 'identification_error' in info:
         print(f'emfc-experiment: identification failed: {info["identification_error"]} '
               f'(bag and report kept in {out})', file=sys.stderr)

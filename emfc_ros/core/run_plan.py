@@ -45,7 +45,7 @@ BRIDGE_RUNNER_DEFAULTS = {'state_rate_Hz': 10.0, 'publish_groups': False}
 BRIDGE_NODE_DEFAULTS = {'watchdog_timeout_s': 1.0, 'excitation_lead_s': 0.1,
                         'excitation_mode': 'stream', 'udp.device_host': '127.0.0.1'}
 SIMULATOR_KEYS = ('balance_file', 'load_mass_kg', 'load_changer_coupled', 'seed', 'noise',
-                  'quantisation', 'state_rate_Hz')
+                  'quantisation', 'state_rate_Hz', 'max_state_wall_rate_Hz')
 RECORDING_KEYS = ('topics', 'flush_period_s', 'max_bag_size_B', 'max_bag_duration_s')
 DEFAULT_TOPICS = ('excitation', 'excitation/description', 'measurements',
                   'measurements/description', 'joint_states', '/diagnostics',
@@ -71,6 +71,9 @@ class SimulatorPlan:
         Noise and converter quantisation on.
     state_rate_Hz : float
         Rate of ``joint_states`` [Hz] (0 disables).
+    max_state_wall_rate_Hz : float or None
+        The plant's wall-rate limit on ``joint_states`` [Hz] (0: none); None: automatic
+        (:func:`runner_state_wall_rate_Hz`).
     """
 
     balance_file: Optional[Path] = None
@@ -80,6 +83,43 @@ class SimulatorPlan:
     noise: bool = True
     quantisation: bool = True
     state_rate_Hz: float = 10.0
+    max_state_wall_rate_Hz: Optional[float] = None
+
+
+#: The plant simulator's own ``max_state_wall_rate_Hz`` default [Hz].
+PLANT_STATE_WALL_RATE_HZ = 500.0
+
+
+def runner_state_wall_rate_Hz(simulator: SimulatorPlan, sample_rate_Hz: float,
+                              block_size: int) -> float:
+    """
+    The plant's wall-rate limit on ``joint_states`` in a run of the experiment runner.
+
+    The runner's nodes share one single-threaded executor: per cycle the plant answers at
+    most one excitation block and the recorder takes at most one message per topic. At most
+    one joint state per block therefore always keeps up, at any speed, and needs no limit
+    (the default, 10 Hz at 1000-sample blocks of 10 kHz: no state decimated, none lost);
+    more states per block are limited to the plant's default 500 Hz of wall time, the rate
+    measured lossless with 1 kHz states (``docs/recording.md``, no silent loss).
+
+    Parameters
+    ----------
+    simulator : SimulatorPlan
+        The plan's simulator (its ``max_state_wall_rate_Hz`` wins when given).
+    sample_rate_Hz : float
+        The experiment's sample rate [Hz].
+    block_size : int
+        Samples per excitation block.
+
+    Returns
+    -------
+    float
+        The limit [Hz]; 0: none.
+    """
+    if simulator.max_state_wall_rate_Hz is not None:
+        return float(simulator.max_state_wall_rate_Hz)
+    per_block = simulator.state_rate_Hz * block_size / sample_rate_Hz
+    return 0.0 if per_block <= 1.0 else PLANT_STATE_WALL_RATE_HZ
 
 
 @dataclasses.dataclass(frozen=True)
@@ -350,7 +390,10 @@ def plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
         noise=get_bool(sim_cfg, 'noise', sim_path, default=True),
         quantisation=get_bool(sim_cfg, 'quantisation', sim_path, default=True),
         state_rate_Hz=get_float(sim_cfg, 'state_rate_Hz', sim_path, default=10.0,
-                                minimum=0.0))
+                                minimum=0.0),
+        max_state_wall_rate_Hz=None if sim_cfg.get('max_state_wall_rate_Hz') in (
+            None, 'auto') else get_float(sim_cfg, 'max_state_wall_rate_Hz', sim_path,
+                                         minimum=0.0, maximum=1.0e6))
 
     rec_cfg = get_mapping(cfg, 'recording', path, default={})
     rec_path = f'{path}.recording'

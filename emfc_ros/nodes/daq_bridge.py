@@ -928,6 +928,21 @@ class DaqBridgeNode(Node):
         self._publish_descriptions()
         self._publish_diagnostics()
 
+    def published_counts(self) -> Dict[str, Dict[str, int]]:
+        """
+        Messages published per stream (for an in-process supervisor's accounting).
+
+        Returns
+        -------
+        dict
+            Relative topic name to ``published`` [count] (joint states in wall time are never
+            decimated).
+        """
+        counts = {topic: {'published': int(self._counts['published_blocks'])}
+                  for topic in self._pub}
+        counts['joint_states'] = {'published': int(self._counts['published_states'])}
+        return counts
+
     def faults(self) -> Tuple[Fault, ...]:
         """
         The latched faults of this run (for in-process supervisors).
@@ -1078,6 +1093,7 @@ class DaqBridgeNode(Node):
             msg.velocity = [float(velocity[i])]
             msg.effort = [float(effort[i])]
             self._pub_state.publish(msg)
+            self._counts['published_states'] += 1
 
     # -- descriptions and diagnostics ----------------------------------------------------------
 

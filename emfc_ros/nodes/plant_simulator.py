@@ -50,7 +50,7 @@ from dataclasses import dataclass
 import math
 from pathlib import Path
 import time
-from typing import List, Optional
+from typing import Dict, List, Optional
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -236,6 +236,7 @@ class PlantSimulatorNode(Node):
         self._sim_samples = 0
         self._blocks_in = 0
         self._blocks_out = 0
+        self._clocks_out = 0
         self._malformed = 0
         self._last_error = ''
         self._command_N = 0.0
@@ -534,6 +535,7 @@ class PlantSimulatorNode(Node):
             # Tick, then /clock (the end of the block: when its last sample exists), then
             # the outputs, so that a use_sim_time subscriber stamps them with simulated time.
             self._pub_clock.publish(Clock(clock=_time_msg(self._sim_time_ns())))
+            self._clocks_out += 1
         self._publish_block(first_index, out)
         self._publish_states(out, stamp_ns)
 
@@ -652,6 +654,7 @@ class PlantSimulatorNode(Node):
             lock.republished += 1
             self._pub_state.publish(lock.state_msg)
             self._pub_clock.publish(Clock(clock=lock.state_msg.header.stamp))
+            self._clocks_out += 1
             lock.published_at = time.monotonic()
 
     def _lockstep_command(self, effort_N: float, stamp_ns: Optional[int], topic: str) -> None:
@@ -708,6 +711,7 @@ class PlantSimulatorNode(Node):
         lock.periods += 1 if n == lock.period else 0
         self._pub_state.publish(msg)
         self._pub_clock.publish(Clock(clock=msg.header.stamp))
+        self._clocks_out += 1
         lock.published_at = time.monotonic()
 
     def _command_setpoint_V(self) -> float:
@@ -758,6 +762,23 @@ class PlantSimulatorNode(Node):
         response.success = True
         response.message = 'simulator state reset to the operating point'
         return response
+
+    def published_counts(self) -> Dict[str, Dict[str, int]]:
+        """
+        Messages published per stream, for an in-process supervisor's accounting.
+
+        Returns
+        -------
+        dict
+            Relative topic name (``/clock`` absolute) to ``published`` and, for
+            ``joint_states``, ``decimated`` (left out by ``max_state_wall_rate_Hz``) [count].
+        """
+        counts = {topic: {'published': self._blocks_out} for topic in self._pub}
+        counts['joint_states'] = {'published': self._states.published,
+                                  'decimated': self._states.decimated}
+        if self._pub_clock is not None:
+            counts['/clock'] = {'published': self._clocks_out}
+        return counts
 
     def _publish_diagnostics(self) -> None:
         values = dict(self._queue.counters())

@@ -86,8 +86,10 @@ PARAMETERS = {
                                    'latest <ns>/excitation/description message recorded'),
     'custom_data': ('', "YAML mapping of extra entries for the bag's custom_data (key: text "
                         'or mapping, a mapping stored as YAML text), written when recording '
-                        'starts; the experiment runner stores the identification options and '
-                        'the plant configuration (pan load) here'),
+                        'starts; set while recording, its entries are added to (or replace '
+                        'those of) the open bag; the experiment runner stores the '
+                        'identification options, the plant configuration (pan load) and, at '
+                        'the end, the message accounting per stream here'),
     'subscription_depth': (1000, 'history depth of the recording subscriptions [messages], '
                                  '1 to 100000'),
     'max_queue_messages': (100000, 'bound of the writer queue [messages], 10 to 10000000; '
@@ -304,6 +306,7 @@ class RecorderNode(Node):
         self.create_service(Trigger, '~/start', self._srv_start)
         self.create_service(Trigger, '~/stop', self._srv_stop)
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._after_set_parameters)
         self._steady = RosClock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(1.0, self._publish_diagnostics, clock=self._steady)
         initial = self._on_set_parameters([self.get_parameter(n) for n in PARAMETERS])
@@ -357,6 +360,13 @@ class RecorderNode(Node):
                     successful=False, reason=f'cannot change {p.name} while recording; call '
                                              '~/stop first')
         return SetParametersResult(successful=True)
+
+    def _after_set_parameters(self, params: List[Parameter]) -> None:
+        """Add the entries of a ``custom_data`` set while recording to the open bag."""
+        for p in params:
+            if p.name == 'custom_data' and self._writer is not None:
+                for key, text in custom_entries(p.value).items():
+                    self._writer.set_custom_data(key, text)
 
     # -- state machine ---------------------------------------------------------------------
 

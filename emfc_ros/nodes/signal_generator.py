@@ -24,7 +24,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 import time
-from typing import List, Optional
+from typing import Dict, List, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
@@ -113,6 +113,8 @@ class SignalGeneratorNode(Node):
         self._epoch = 0
         self._next_index = 0
         self._blocks_sent = 0
+        self._blocks_repeated = 0     # sent again (a window not acknowledged in time)
+        self._sent_end = 0            # end of the furthest block sent [sample index]
         self._started_at = 0.0
         self._clock_pacer: Optional[ClockPacer] = None
         self._consumer_pacer: Optional[ConsumerPacer] = None
@@ -249,6 +251,8 @@ class SignalGeneratorNode(Node):
         self._epoch += 1
         self._next_index = 0
         self._blocks_sent = 0
+        self._blocks_repeated = 0
+        self._sent_end = 0
         self._state = 'armed'
         self._error = ''
         self._publish_done(False)
@@ -438,7 +442,10 @@ class SignalGeneratorNode(Node):
             samples = experiment.block(self._next_index, n)
             self._pub_blocks.publish(self._builder.build(self._next_index, rate, self._epoch,
                                                          samples))
+            if self._next_index < self._sent_end:
+                self._blocks_repeated += 1
             self._next_index += n
+            self._sent_end = max(self._sent_end, self._next_index)
             self._blocks_sent += 1
             budget -= 1
         if self._consumer_pacer is not None:
@@ -480,6 +487,20 @@ class SignalGeneratorNode(Node):
 
     def _publish_done(self, done: bool) -> None:
         self._pub_done.publish(Bool(data=done))
+
+    def published_counts(self) -> Dict[str, Dict[str, int]]:
+        """
+        Blocks published in the current epoch (for an in-process supervisor's accounting).
+
+        Returns
+        -------
+        dict
+            ``{'excitation': {'published': n, 'repeated': m}}`` [count]: ``published``
+            includes the ``repeated`` blocks sent again because a window was not
+            acknowledged in time.
+        """
+        return {'excitation': {'published': self._blocks_sent,
+                               'repeated': self._blocks_repeated}}
 
     def _publish_diagnostics(self) -> None:
         status = self._status_dict()

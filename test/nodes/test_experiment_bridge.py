@@ -29,8 +29,10 @@ from emfc_ros.core.model.parameters import BalanceParameters
 from emfc_ros.core.paths import config_file
 from emfc_ros.core.run_plan import load_plan
 from emfc_ros.core.signals import experiment_from_config
+import readme_lines
 import ros_harness
 
+REPO = Path(__file__).resolve().parents[2]
 DAC_LSB_V = 20.0 / 65536
 RUN_TIMEOUT_S = 240
 
@@ -86,10 +88,18 @@ def _frf(results: dict, name: str = 'coil_chirp.coil') -> dict:
 
 @pytest.mark.slow
 def test_bridge_run_on_the_emulator_matches_the_simulator_target(tmp_path):
+    # The README's line as typed, `emfc-experiment config/experiment_bridge_emulator.yaml`,
+    # in a folder where config/ is the checkout's; it writes out/identification-bridge-<time>/.
     plan_path = config_file('experiment_bridge_emulator.yaml')
-    out = tmp_path / 'bridge'
-    result = _run([str(plan_path), '-o', str(out)], cwd=tmp_path)
+    argv = readme_lines.readme_argv('emfc-experiment config/experiment_bridge_emulator.yaml')
+    (tmp_path / 'config').symlink_to(REPO / 'config')
+    result = subprocess.run(argv, capture_output=True, text=True, timeout=RUN_TIMEOUT_S,
+                            env=ros_harness.child_environment(), cwd=tmp_path)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    folders = list((tmp_path / 'out').iterdir())
+    assert len(folders) == 1 and f'output {folders[0].relative_to(tmp_path)}' in \
+        result.stdout, (folders, result.stdout[:500])
+    out = folders[0]
     for name in ('experiment.yaml', 'run.yaml', 'timing.json', 'summary.md',
                  'bag/metadata.yaml', 'bag/bag_0.mcap', 'identification/results.yaml',
                  'identification/summary.md', 'identification/bode_coil_chirp.coil.png'):

@@ -1,12 +1,15 @@
 """
 The experiment runner's default job, end to end: nodes over real DDS, a real bag read back.
 
-Runs ``emfc-experiment`` as users do (a separate process, the shipped default plan) and
-checks every output file and the recorded samples.
+Runs the README's first line, ``./tools/experiment.sh``, as typed in the checkout (it sets up
+the venv, a check that installs nothing when the venv is current, then runs
+``emfc-experiment`` with no arguments: the README's ``emfc-experiment`` line, the shipped
+default plan) and checks every output file, the recorded samples and the message accounting.
 """
 
 import json
 from pathlib import Path
+import re
 import shutil
 import subprocess
 import sys
@@ -21,7 +24,11 @@ from emfc_ros.core.blocks import unpack
 from emfc_ros.core.paths import config_file
 from emfc_ros.core.run_plan import load_plan
 from emfc_ros.core.signals import experiment_from_config
+from emfc_ros.core.stream_counts import CUSTOM_DATA_KEY, from_mapping, problems
+import readme_lines
 import ros_harness
+
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _runner() -> str:
@@ -39,11 +46,28 @@ def _identify_cli() -> str:
 
 @pytest.fixture(scope='module')
 def default_run(tmp_path_factory):
-    """The README's main job, run once as a user runs it."""
+    """
+    The README's main job, ``./tools/experiment.sh``, run once as a user types it.
+
+    It writes ``out/identification-<date>-<time>/`` in the checkout, as for the user; the
+    folder is moved to the test's temporary folder (and an ``out/`` it created removed).
+    """
+    readme_lines.check_tools_venv()
+    argv = readme_lines.readme_argv('./tools/experiment.sh')
     tmp_path = tmp_path_factory.mktemp('default_run')
+    out_root = REPO / 'out'
+    had_out = out_root.exists()
+    result = subprocess.run(argv, capture_output=True, text=True, timeout=900, cwd=REPO,
+                            env=ros_harness.child_environment({'EMFC_VENV': sys.prefix}))
+    made = re.search(r'^emfc-experiment: identification on the simulator, output (\S+)$',
+                     result.stdout, re.M)
     out = tmp_path / 'run'
-    result = subprocess.run([_runner(), '-o', str(out)], capture_output=True, text=True,
-                            timeout=900, env=ros_harness.child_environment(), cwd=tmp_path)
+    if made:
+        assert Path(made.group(1)).parent == Path('out'), made.group(1)
+        shutil.move(str(REPO / made.group(1)), str(out))
+    if not had_out and out_root.is_dir() and not any(out_root.iterdir()):
+        out_root.rmdir()
+    assert made, result.stdout[-3000:] + result.stderr[-3000:]
     return out, result
 
 
@@ -51,6 +75,8 @@ def default_run(tmp_path_factory):
 def test_default_job_produces_all_outputs_and_an_exact_bag(default_run):
     out, result = default_run
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    # tools/setup_env.sh found the venv current: it created and installed nothing.
+    assert 'setup_env:' not in result.stderr, result.stderr
     for name in ('experiment.yaml', 'run.yaml', 'timing.json', 'summary.md',
                  'bag/metadata.yaml', 'bag/bag_0.mcap', 'identification/results.yaml',
                  'identification/summary.md', 'identification/bode_coil_chirp.coil.png',
@@ -120,6 +146,35 @@ def test_the_bag_carries_simulated_time(default_run):
                           timeout=60)
     assert info.returncode == 0, info.stderr
     assert 'of simulated time' in info.stdout and 'Recorded (wall)' in info.stdout
+
+
+@pytest.mark.slow
+def test_the_main_job_accounts_for_every_message(default_run):
+    """No silent loss (issue 13 item 5): per stream due, published, decimated, recorded."""
+    out, result = default_run
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    custom = read_metadata(out / 'bag')['custom_data']
+    counts = {c.topic: c for c in from_mapping(yaml.safe_load(custom[CUSTOM_DATA_KEY]))}
+    # Read with an independent reader: rosbags.
+    with AnyReader([out / 'bag']) as reader:
+        recorded = {c.topic: c.msgcount for c in reader.connections}
+    assert {t: c.recorded for t, c in counts.items()} == recorded
+    # 490 blocks of 1000 samples: one answer, one /clock tick and (10 Hz of 10 kHz) one
+    # joint state per block, all due, all published (none left out by a rate limit) and all
+    # in the bag.
+    for topic in ('/emfc/excitation', '/emfc/measurements', '/clock', '/emfc/joint_states'):
+        c = counts[topic]
+        assert c.due == 490 and c.published - c.repeated + c.decimated == c.due, c
+        assert c.decimated == 0 and c.lost == 0 and c.recorded == c.published, c
+    assert problems(counts.values()) == []
+    run = yaml.safe_load((out / 'run.yaml').read_text())['run']
+    assert run['simulator']['max_state_wall_rate_Hz_used'] == 0.0
+    # The same figures in summary.md, where the user looks.
+    summary = (out / 'summary.md').read_text()
+    assert '## Messages per stream' in summary
+    assert '| `/emfc/joint_states` | 490 | 490 | 0 | 0 | 490 | 0 |' in summary
+    assert 'Every message published on the 4 counted streams is in the bag (lost 0).' in summary
+    assert 'warning' not in result.stderr
 
 
 def _numbers(results: dict) -> dict:

@@ -98,12 +98,18 @@ def test_every_published_joint_state_is_recorded_at_full_speed(tmp_path, process
     watcher = Watcher(ros_context)
     executor.add_node(watcher.node)
 
-    # The launch file's two nodes (the plant waits for a listener of its measurements),
+    # The launch file's two nodes: the plant waits for a listener of its measurements
+    # (min_subscribers 1, as sim_experiment.launch.py sets it),
     plant = processes.start(_argv('plant_simulator', {
         'time_mode': 'owner', 'load_mass_kg': 0.1274, 'state_rate_Hz': STATE_RATE_HZ,
         'publish_groups': False, 'min_subscribers': 1}))
-    # The generator waits for the recorder's subscription to the excitation too (the
-    # plant's and the recorder's), as the launch file has it.
+    # and, unlike in the launch file (which leaves the generator's default: it holds sample 0
+    # for its consumer, the plant), the generator here also waits for the recorder's
+    # subscription to the excitation (2 in all), because this test asserts that every
+    # excitation block is in the bag. The launch file cannot ask for 2: a recorder of the
+    # measurements only would keep its generator waiting; recorded after the launch, as the
+    # README says, the excitation is in the bag from sample 0 without it
+    # (test_launch_files.py::test_sim_experiment_answers_the_whole_default_trajectory).
     generator = processes.start(_argv('signal_generator', {
         'experiment_file': str(experiment), 'pacing': 'consumer', 'block_size': 1000,
         'min_subscribers': 2}))

@@ -29,7 +29,7 @@ import yaml
 
 from emfc_ros.core.bag import read_streams
 from emfc_ros.core.config import unflatten
-from emfc_ros.core.signals.spec import experiment_from_config, load_experiment_file
+from emfc_ros.core.signals.spec import load_experiment_file
 from emfc_ros.nodes import daq_bridge, plant_simulator, signal_generator
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, LATCHED_QOS, msg_to_block, msg_to_description)
@@ -53,7 +53,8 @@ DAC_LSB_V = 20.0 / 65536
 #: A placeholder in documented argument values (``bag:=out/identification-.../bag``).
 PLACEHOLDER = '...'
 
-#: A short wall-paced experiment for the hardware run (0.5 s; the default lasts 40 s).
+#: A short wall-paced experiment for the hardware lines with arguments (0.5 s; the README's
+#: line runs the default, 40 s).
 SHORT_EXPERIMENT = {
     'sample_rate_Hz': 10000.0,
     'sections': ['sine'],
@@ -476,20 +477,32 @@ def test_replay_gives_back_the_recorded_measurements(stub, sim_run, tmp_path, pr
 @pytest.mark.slow
 def test_hardware_experiment_through_the_device_emulator(stub, tmp_path, processes, executor,
                                                          ros_context):
-    emulator = processes.start([str(Path(sys.executable).parent / 'emfc-device-emulator'),
-                                '--port', '0', '--seed', '1'])
-    assert ros_harness.wait_until(lambda: '\n' in emulator.output(), TIMEOUT_S)
-    port = int(emulator.output().splitlines()[0])
-    experiment_file = _write_experiment(tmp_path / 'short.yaml', SHORT_EXPERIMENT)
-    excitation = experiment_from_config(unflatten(SHORT_EXPERIMENT))
-    total = excitation.total_samples
+    """
+    The hardware launch lines with ``emfc-device-emulator --port 5555`` as the docs type it.
+
+    The README's line (no arguments) runs the launch file's default trajectory, 40 s of
+    experiment at the device's wall-clock pace; every other documented argument line runs
+    with a 0.5 s experiment file added (``experiment_file:=``, the last value wins), so the
+    suite spends the 40 s once.
+    """
+    emulator = processes.start(['emfc-device-emulator', '--port', '5555'])
+    assert ros_harness.wait_until(lambda: 'listening on' in emulator.output(), TIMEOUT_S), \
+        emulator.output()
+    assert emulator.output().splitlines()[0] == '5555'
+    short_file = _write_experiment(tmp_path / 'short.yaml', SHORT_EXPERIMENT)
     observer = Observer(ros_context, measurements=True)
     executor.add_node(observer.node)
-    for where, args in documented_lines(stub, 'hardware_experiment.launch.py'):
-        # The user's line with their device's port and (40 s of wall time is too long here)
-        # a shorter experiment file; `ros2 launch` lets the last value win.
-        args = args + [f'device_port:={port}', f'experiment_file:={experiment_file}']
+    lines = documented_lines(stub, 'hardware_experiment.launch.py')
+    assert ('README.md', []) in lines and len(lines) > 1, lines
+    for where, args in lines:
+        if args:
+            args = args + [f'experiment_file:={short_file}']
         launched = evaluate(stub, tmp_path, 'hardware_experiment.launch.py', args)
+        experiment_file = launched.context.launch_configurations['experiment_file']
+        assert (experiment_file == str(short_file)) == bool(args), experiment_file
+        excitation = load_experiment_file(experiment_file)
+        total = excitation.total_samples
+        assert total == (400000 if not args else 5000), (where, total)
         observer.blocks['measurements'].clear()
         observer.done = observer.status = None
         nodes = start(processes, launched)
@@ -504,8 +517,9 @@ def test_hardware_experiment_through_the_device_emulator(stub, tmp_path, process
 
         assert ros_harness.spin_until(
             executor, lambda: observer.done is True and excitation_measured(),
-            START_TIMEOUT_S), (where, observer.status, nodes['daq_bridge'].output(),
-                               nodes['signal_generator'].output())
+            START_TIMEOUT_S + total / 10000.0), (where, observer.status,
+                                                 nodes['daq_bridge'].output(),
+                                                 nodes['signal_generator'].output())
         assert observer.status['state'] == 'done' and observer.status['error'] == ''
         blocks = observer.blocks['measurements']
         firsts = [b.first_sample_index for b in blocks]
