@@ -33,6 +33,8 @@ from emfc_ros.core.paths import config_file
 from emfc_ros.core.run_plan import load_plan, RunPlan
 
 DEFAULT_PLAN = 'experiment_default.yaml'
+#: Longest wait for the daq_bridge to start or stop the device (its worker thread) [s].
+START_WAIT_S = 30.0
 
 
 class Phases:
@@ -472,7 +474,18 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
             if not answer.success:
                 raise RuntimeError(f'{device_name} could not start the device '
                                    f'({plan.bridge.backend} back-end): {answer.message}')
-            _progress(f'  {device_name}: {answer.message}')
+            # The bridge starts the device in its worker thread (the executor never waits
+            # for the device); its status says when that ended.
+            if not spin_until(lambda: device_node.status_values()['state']
+                              in ('running', 'error'), START_WAIT_S):
+                raise RuntimeError(f'{device_name} did not start the device in '
+                                   f'{START_WAIT_S:g} s: {device_node.status_values()}')
+            state = device_node.status_values()
+            if state['state'] != 'running':
+                raise RuntimeError(f'{device_name} could not start the device '
+                                   f'({plan.bridge.backend} back-end): '
+                                   f'{state["last_error"] or state["error"]}')
+            _progress(f'  {device_name}: started, stream epoch {state["stream_epoch"]}')
 
         phases.start('experiment')
         answer = call('signal_generator/start')
@@ -523,8 +536,13 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
         if on_bridge:
             # Outputs to their safe values and no more blocks: the stream has an end.
             answer = call('daq_bridge/stop')
-            if not answer.success:
-                _progress(f'  {device_name}: stop: {answer.message}')
+            if answer.success:
+                spin_until(lambda: device_node.status_values()['state']
+                           not in ('running', 'stopping'), START_WAIT_S)
+            state = device_node.status_values()
+            if not answer.success or state['state'] != 'stopped':
+                _progress(f'  {device_name}: stop: {answer.message} (state {state["state"]}, '
+                          f'{state["last_error"]})')
         measurement_topic = f'{ns}/measurements'
         # Everything the runner received has been published; wait (bounded) until the
         # recorder has written as many measurement blocks, then close the bag.
@@ -568,16 +586,22 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
 
 def _start_emulator(plan: RunPlan, params: Any, load_kg: float, coupled: bool) -> Any:
     """Start the device emulator in this process (loopback only), loaded like the plan."""
+    from emfc_ros.core.device.auth import KeyFileError, load_key_file
     from emfc_ros.core.device.emulator import DeviceEmulator
 
     emu = plan.bridge.emulator
-    emulator = DeviceEmulator(emu.host, emu.port, params=params, seed=emu.seed,
-                              max_inputs=emu.channels, simulator_options={
-                                  'load_mass_kg': float(load_kg),
-                                  'load_changer_coupled': bool(coupled),
-                                  'noise': emu.noise, 'quantisation': emu.quantisation})
+    # The bridge's key file, if any: the emulator speaks with the same key.
+    key_file = str(plan.bridge.parameters.get('udp.key_file') or '')
     try:
+        emulator = DeviceEmulator(emu.host, emu.port, params=params, seed=emu.seed,
+                                  max_inputs=emu.channels, simulator_options={
+                                      'load_mass_kg': float(load_kg),
+                                      'load_changer_coupled': bool(coupled),
+                                      'noise': emu.noise, 'quantisation': emu.quantisation},
+                                  key=load_key_file(key_file) if key_file else None)
         emulator.start()
+    except KeyFileError as exc:
+        raise RuntimeError(f'cannot start the device emulator: {exc}') from None
     except OSError as exc:
         raise RuntimeError(f'cannot start the device emulator on {emu.host}:{emu.port}: '
                            f'{exc}') from exc

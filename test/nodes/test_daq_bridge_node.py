@@ -175,9 +175,9 @@ def test_faults_are_reported_and_no_wrong_sample_is_published(executor, ros_cont
         # from a foreign address, a truncated frame and a frame of the wrong channel count
         # from the device's own address: dropped and counted, the node keeps running.
         good = proto.encode_frame(proto.Frame(proto.STREAM_MEASUREMENT, 7, 1, 700,
-                                              np.zeros((4, 100), dtype=np.int16)))
+                                              np.zeros((4, 100), dtype=np.int16), emu.session))
         wrong = proto.encode_frame(proto.Frame(proto.STREAM_MEASUREMENT, 7, 1, 700,
-                                               np.zeros((3, 100), dtype=np.int16)))
+                                               np.zeros((3, 100), dtype=np.int16), emu.session))
         target = bridge._backend.local_address
         emu._sock.sendto(good[:60], target)
         emu._sock.sendto(wrong, target)
@@ -337,7 +337,18 @@ def test_stop_and_start_services_restart_the_stream_in_a_new_epoch(
     probe = Probe(ros_context)
     setup_nodes(executor, bridge, probe.node)
     assert ros_harness.spin_until(executor, lambda: len(probe.blocks) >= 2, TIMEOUT_S)
-    assert probe.call(executor, 'stop').success
+    statuses = []
+    probe.node.create_subscription(String, 'daq_bridge/status',
+                                   lambda m: statuses.append(json.loads(m.data)), LATCHED_QOS)
+    assert ros_harness.spin_until(executor, lambda: statuses and
+                                  statuses[-1]['state'] == 'running', TIMEOUT_S)
+    # The services answer at once; the device's answer is waited for in the worker thread
+    # and ~/status says how it ended.
+    answer = probe.call(executor, 'stop')
+    assert answer.success and 'in the background' in answer.message
+    assert ros_harness.spin_until(executor, lambda: statuses[-1]['state'] == 'stopped',
+                                  TIMEOUT_S)
+    assert 'stopping' in [s['state'] for s in statuses]
     assert bridge.diagnostic_values()['state'] == 'stopped'
     epoch = probe.blocks[-1][1]
     assert probe.call(executor, 'start').success
@@ -583,11 +594,12 @@ def test_autostart_waits_for_a_device_that_is_not_there_yet(executor, ros_contex
     probe_sock.close()
     bridge = DaqBridgeNode(context=ros_context, parameter_overrides=bridge_params(
         backend='udp', **{'udp.device_port': port, 'udp.request_timeout_s': 0.05}))
+    # The first attempt runs in the worker thread: the node is up at once.
+    assert bridge.diagnostic_values()['state'] in ('starting', 'error')
     probe = Probe(ros_context)
     setup_nodes(executor, bridge, probe.node)
-    assert bridge.diagnostic_values()['state'] == 'error'
-    assert 'start failed' in bridge.diagnostic_values()['last_error']
     assert ros_harness.spin_until(executor, lambda: probe.diag('state') == 'error', TIMEOUT_S)
+    assert 'start failed' in bridge.diagnostic_values()['last_error']
     with DeviceEmulator(port=port, record=True, seed=8) as emu:
         assert ros_harness.spin_until(executor, lambda: len(probe.blocks) >= 2, TIMEOUT_S)
         record = emulator_record(emu)

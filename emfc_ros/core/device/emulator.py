@@ -54,6 +54,9 @@ NETWORK_COUNTERS = ('frames_sent', 'foreign_datagrams', 'corrupt_datagrams',
                     'faults_stalled_frames', 'send_errors', 'foreign_requests',
                     'unauthenticated_datagrams', 'replayed_datagrams', 'unsolicited_datagrams',
                     'setpoint_frames_stale', 'owner_changes', 'owner_takeovers')
+#: Counters of datagrams the emulator refused (what someone else, or a stale session, sent).
+REFUSED_COUNTERS = ('foreign_requests', 'foreign_datagrams', 'unauthenticated_datagrams',
+                    'replayed_datagrams', 'unsolicited_datagrams', 'corrupt_datagrams')
 STATE_CODES = {'idle': proto.STATE_IDLE, CONFIGURED: proto.STATE_CONFIGURED,
                RUNNING: proto.STATE_RUNNING}
 #: Most frames produced in one loop pass when the clock is behind (then it catches up later).
