@@ -830,11 +830,12 @@ class UdpBackend:
                       now: float) -> None:
         # lock held
         if sent is None:
-            key = 'late_responses' if msg.request_id in self._heartbeats_missed \
-                else 'unsolicited'
-            self.counters[key] += 1
+            late = msg.request_id in self._heartbeats_missed or \
+                msg.request_id in self._answered
+            self.counters['late_responses' if late else 'unsolicited'] += 1
             return
         del self._heartbeats[msg.request_id]
+        self._answered.append(msg.request_id)
         self._alive(now)
         if msg.status != proto.OK:
             self.counters['heartbeat_refusals'] += 1
