@@ -289,6 +289,7 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
     from std_srvs.srv import Trigger
 
     from emfc_ros.core.blocks import SequenceTracker, StreamDescription
+    from emfc_ros.core.json_text import load_json_text
     from emfc_ros.core.model.parameters import BalanceParameters
     from emfc_ros.core.signals import experiment_from_config
     from emfc_ros.core.sim.balancing import balancing_load_mass_kg
@@ -389,7 +390,13 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
         nodes.append(runner)
 
         seen = {'samples': 0, 'blocks': 0, 'end': 0, 'epochs': set(), 'status': {},
-                'offset': None}
+                'offset': None, 'malformed': 0}
+
+        def malformed(what: str, exc: Exception) -> None:
+            """A description or status that did not parse: counted, said once, ignored."""
+            seen['malformed'] += 1
+            if seen['malformed'] == 1:
+                _progress(f'  warning: malformed {what} ignored: {exc}')
         tracker = SequenceTracker()
 
         def on_measurements(msg: Float64MultiArray) -> None:
@@ -403,17 +410,26 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
         def on_description(msg: String) -> None:
             try:
                 extra = StreamDescription.from_json(msg.data).extra
-            except ValueError:
+            except ValueError as exc:           # BlockError: malformed, too deep, too large
+                malformed('measurement description', exc)
                 return
             seen['offset'] = extra.get('excitation_offset_samples')
+
+        def on_status(msg: String) -> None:
+            try:
+                status = load_json_text(msg.data, 'signal generator status')
+                if not isinstance(status, dict):
+                    raise ValueError(f'expected a JSON object, got {type(status).__name__}')
+            except ValueError as exc:
+                malformed('signal generator status', exc)
+                return
+            seen['status'].update(status)
 
         runner.create_subscription(Float64MultiArray, 'measurements', on_measurements,
                                    BLOCK_QOS)
         runner.create_subscription(String, 'measurements/description', on_description,
                                    LATCHED_QOS)
-        runner.create_subscription(
-            String, 'signal_generator/status',
-            lambda m: seen['status'].update(json.loads(m.data)), LATCHED_QOS)
+        runner.create_subscription(String, 'signal_generator/status', on_status, LATCHED_QOS)
         clients = {name: runner.create_client(Trigger, name) for name in (
             'signal_generator/start', 'recorder/start', 'recorder/stop', 'daq_bridge/start',
             'daq_bridge/stop')}
@@ -566,6 +582,7 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
         info = {'total_samples': total, 'sample_rate_Hz': rate, 'bag': str(bag),
                 'load_mass_kg': load_kg, 'load_changer_coupled': coupled,
                 'measurement_blocks_received': seen['blocks'],
+                'malformed_descriptions_or_status': seen['malformed'],
                 'measurement_stream': tracker.counters(),
                 'written_messages': written}
         if on_bridge:

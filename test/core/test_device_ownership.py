@@ -388,7 +388,7 @@ def test_late_unsolicited_and_forged_replies_are_counted_not_believed():
         device.close()
 
 
-CHILD = r'''
+CHILD = r"""
 import json, sys, time
 from emfc_ros.core.device import UdpBackend, default_device_config
 backend = UdpBackend(('127.0.0.1', int(sys.argv[1])), auto_reconnect=False)
@@ -403,7 +403,7 @@ while time.monotonic() < end:
     print(json.dumps({k: h[k] for k in ('device_losses', 'host_stalls', 'frames_received',
                                         'device_silent_ms')}), flush=True)
     time.sleep(0.05)
-'''
+"""
 
 
 def _stall_cycles(proc, lines, cycles, stop_s, run_s, until=None):
