@@ -315,3 +315,33 @@ def test_key_files_are_refused_unless_readable_private_hex_and_long(tmp_path):
             load_key_file(path)
     with pytest.raises(KeyFileError, match='not a regular file'):
         load_key_file(tmp_path)
+
+
+def _doc_examples():
+    """The hex dumps of docs/device_protocol.md, in order, as bytes."""
+    import re
+    from pathlib import Path
+    text = (Path(__file__).resolve().parents[2] / 'docs' / 'device_protocol.md').read_text()
+    dumps, rows, inside = [], [], False
+    for line in text.splitlines():
+        if line.startswith('```'):
+            if inside and rows:
+                dumps.append(bytes.fromhex(''.join(rows)))
+            inside, rows = not inside, []
+        elif inside and re.match(r'^[0-9a-f]{4}  ', line):
+            rows.append(''.join(line[6:53].split()))
+    return dumps
+
+
+def test_the_documented_examples_are_what_the_code_sends():
+    frame, beat, signed = _doc_examples()
+    session = 0x1122334455667788
+    assert frame == proto.encode_frame(proto.Frame(
+        proto.STREAM_MEASUREMENT, 5, 1, 1000,
+        np.array([[100, -100, 2524, 32767], [0, 1, -1, -32768]], dtype=np.int16), session))
+    message = proto.Message(proto.HEARTBEAT, 42, body=proto.HEARTBEAT_REQUEST.pack(123456789),
+                            session=session)
+    assert beat == proto.encode_message(message)
+    key = bytes(range(32))
+    assert signed == proto.encode_message(message, Signer(key, lambda: 1700000000000000000))
+    assert proto.decode_message(signed, key) == message

@@ -635,3 +635,52 @@ def test_an_invalid_min_subscribers_is_an_error_that_says_why(executor, ros_cont
     values = bridge.diagnostic_values()
     assert values['state'] == 'error'
     assert 'min_subscribers' in values['error'], values
+
+
+def _readme_block(after: str):
+    """The shell lines of the first ``bash`` block after a sentence of the README."""
+    from pathlib import Path
+    text = (Path(__file__).resolve().parents[2] / 'README.md').read_text()
+    start = text.index('```bash', text.index(after)) + len('```bash')
+    block = text[start:text.index('```', start)].replace('\\\n', '')
+    return [line.strip() for line in block.splitlines() if line.strip()]
+
+
+def test_the_readme_key_commands_run_as_typed(executor, ros_context, processes, tmp_path):
+    import shlex
+    import subprocess
+    from pathlib import Path
+    repo = Path(__file__).resolve().parents[2]
+    keygen, emulator_line, bridge_line = _readme_block('authenticate every datagram')
+    (tmp_path / 'config').symlink_to(repo / 'config')
+    subprocess.run(['bash', '-c', keygen], cwd=tmp_path, check=True, timeout=60,
+                   env=ros_harness.child_environment())
+    assert len(bytes.fromhex((tmp_path / 'device.key').read_text())) == 32
+    assert (tmp_path / 'device.key').stat().st_mode & 0o777 == 0o600
+    emulator = processes.start(shlex.split(emulator_line), cwd=tmp_path)
+    argv = shlex.split(bridge_line)
+    assert argv[:4] == ['ros2', 'run', 'emfc_ros', 'daq_bridge'], argv
+    bridge = processes.start(ros_harness.node_executable('daq_bridge') + argv[4:], cwd=tmp_path)
+    node = rclpy.create_node('key_probe', namespace='/emfc', context=ros_context)
+    blocks, diagnostics = [], []
+    node.create_subscription(Float64MultiArray, 'measurements', blocks.append, BLOCK_QOS)
+    node.create_subscription(DiagnosticArray, '/diagnostics', diagnostics.append, 10)
+    executor.add_node(node)
+
+    def authenticated():
+        for msg in diagnostics:
+            for status in msg.status:
+                values = {kv.key: kv.value for kv in status.values}
+                if status.name.startswith('daq_bridge') and values.get('authenticated') == '1' \
+                        and int(values.get('frames_received', 0)) > 0:
+                    return True
+        return False
+
+    # A fresh install compiles the simulator kernel at the emulator's first start.
+    assert ros_harness.spin_until(executor, lambda: len(blocks) >= 3 and authenticated(),
+                                  180.0), emulator.output() + bridge.output()
+    assert bridge.stop() in (0, -2)
+    assert emulator.stop() == 0
+    out = emulator.output()
+    assert 'authentication: HMAC-SHA256 key device.key' in out, out
+    assert 'refused datagrams: none' in out, out
