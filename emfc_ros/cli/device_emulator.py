@@ -3,8 +3,8 @@ emfc-device-emulator: the UDP device emulator (simulated balance inside) as a pr
 
 ``emfc-device-emulator [--bind 127.0.0.1] [--port N] [--config balance.yaml] [--channels 4]
 [--faults drop=0.01,duplicate=0.01,reorder=0.01,corrupt=0.01,delay_ms=5,stall_s=2,
-stall_after_s=1,die_after_s=30] [--seed S] [--duration-s T] [--key-file device.key]
-[--allow-remote]``
+stall_after_s=1,die_after_s=30,setpoint_drop=0.01] [--seed S] [--duration-s T]
+[--key-file device.key] [--allow-remote]``
 
 With ``--key-file`` every datagram must be authenticated with that pre-shared key (the
 bridge's ``udp.key_file``); an unreadable, group- or world-readable, non-hex or short key
@@ -51,7 +51,8 @@ def _parser() -> argparse.ArgumentParser:
                         help='analog inputs of the device: most channels a host may select')
     parser.add_argument('--faults', default='', help='comma-separated key=value faults: drop, '
                         'duplicate, reorder, corrupt (probabilities), delay_ms, stall_s, '
-                        'stall_after_s, die_after_s')
+                        'stall_after_s, die_after_s, setpoint_drop (setpoint frames lost on '
+                        'their way in)')
     parser.add_argument('--seed', type=int, default=0, help='noise and fault seed')
     parser.add_argument('--duration-s', type=float, default=0.0,
                         help='stop after this long (default 0: run until interrupted)')

@@ -647,10 +647,12 @@ class DaqBridgeNode(Node):
             specs = self._safe_specs() if self._estop else self._specs
             if self._estop or self._mode == 'function_generator':
                 self._backend.set_function_generator(specs)
+            # The START request waits for the device: not with the lock the executor's
+            # callbacks take (no block of the new epoch is read before the state is reset).
+            epoch = self._backend.start()
             with self._lock:
                 self._reset_stream_state()
                 self._tripped = False
-                epoch = self._backend.start()
                 self._t_start = time.monotonic()
                 self._anchor_ns = time.monotonic_ns()
                 self._start_time_ns = self.get_clock().now().nanoseconds

@@ -458,3 +458,37 @@ def test_a_dead_device_is_declared_lost_even_when_the_host_stalls_again_and_agai
             proc.kill()
         proc.wait(10)
         reader.join(5)
+
+
+def test_lost_and_refused_setpoint_frames_are_reported_where_they_began(emulator):
+    emu = emulator(seed=25, faults=Faults(setpoint_drop=0.2))
+    backend = UdpBackend((LOCAL, emu.port))
+    try:
+        backend.configure(_config(watchdog_timeout_s=1.0))
+        backend.start()
+        first = _read(backend, 1)[0]
+        # 40 contiguous setpoint frames of 500 samples, well ahead of the device clock.
+        start = first.end_index + 4 * BLOCK
+        for i in range(40):
+            backend.write_setpoints(start + i * BLOCK, np.full((2, BLOCK), 0.5))
+        # One frame of the wrong channel count, as the owner: refused by the device.
+        backend._send(proto.encode_frame(proto.Frame(
+            proto.STREAM_SETPOINT, 999, backend.epoch, start + 100 * BLOCK, np.ones((3, 10)),
+            backend.session)))
+        deadline = time.monotonic() + 5.0
+        while backend.health()['device_setpoint_frames_rejected'] < 1 and \
+                time.monotonic() < deadline:
+            backend.read_block(0.1)
+        health = backend.health()
+        dropped = sorted(emu.dropped_setpoints)
+        # Lost frames that a later frame followed are gaps the device filled, from the
+        # first one on; the last frames' losses (nothing after them) are underruns instead.
+        inner = [d for d in dropped if d < start + 39 * BLOCK]
+        assert inner, dropped
+        assert health['device_gap_filled_samples'] >= len(inner) * BLOCK
+        assert health['device_first_gap_index'] == inner[0]
+        assert health['device_setpoint_frames_rejected'] == 1
+        assert health['device_first_rejected_index'] == start + 100 * BLOCK
+        assert emu.all_counters()['faults_setpoint_dropped'] == len(dropped)
+    finally:
+        backend.close()

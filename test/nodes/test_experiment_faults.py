@@ -17,7 +17,10 @@ stalled or killed alone:
   0) and every forgery counted on the side it reached (the device's STATUS, the bridge's
   diagnostics in the bag);
 - the runner stalled while forged heartbeats keep arriving: they do not feed the device's
-  watchdog, which trips; the run fails. The plan's ``timeout_s``
+  watchdog, which trips; the run fails;
+- setpoint frames lost on their way to the device: the device fills the gaps with the safe
+  values and says so in its heartbeat; the run fails naming the samples from the first gap
+  (the device's own record), and the bag carries the fault. The plan's ``timeout_s``
   (:data:`PLAN_TIMEOUT_S`) is longer than this test's own bounded wait for the run
   (:data:`RUN_TIMEOUT_S`): a runner that waited for the plan's timeout would not have ended
   when the test stops waiting.
@@ -102,9 +105,8 @@ class _Child:
         return ''.join(self.out) + ''.join(self.err)
 
 
-@pytest.fixture
-def emulator(tmp_path):
-    child = _Child(['emfc_ros.cli.device_emulator', '--channels', '6', '--seed', '3'],
+def _emulator(tmp_path, *extra):
+    child = _Child(['emfc_ros.cli.device_emulator', '--channels', '6', '--seed', '3', *extra],
                    tmp_path)
     try:
         assert child.wait_line(lambda line: line.strip().isdigit(), 30.0), child.text()
@@ -114,6 +116,17 @@ def emulator(tmp_path):
         if child.proc.poll() is None:
             child.proc.send_signal(signal.SIGINT)
         child.finish(15)
+
+
+@pytest.fixture
+def emulator(tmp_path):
+    yield from _emulator(tmp_path)
+
+
+@pytest.fixture
+def lossy_emulator(tmp_path):
+    """A device that loses a tenth of the setpoint frames on their way in."""
+    yield from _emulator(tmp_path, '--faults', 'setpoint_drop=0.1')
 
 
 def _plan(tmp_path: Path, port: int, bind_port: int = 0, identify: bool = True) -> Path:
@@ -389,3 +402,22 @@ def test_forged_heartbeats_do_not_keep_the_watchdog_of_a_stalled_host_fed(tmp_pa
     finally:
         stop.set()
         forger.close()
+
+
+@pytest.mark.slow
+def test_setpoints_lost_on_the_way_fail_the_run_from_the_devices_record(
+        tmp_path, lossy_emulator):
+    plan = _plan(tmp_path, lossy_emulator.port, identify=False)
+    run = _Child(['emfc_ros.cli.experiment', str(plan), '-o', str(tmp_path / 'out')],
+                 tmp_path)
+    rc = run.finish(RUN_TIMEOUT_S)
+    text = run.text()
+    assert rc == 1, text
+    assert 'device_setpoint_gap' in text and 'filled with the safe values' in text, text
+    assert 'experiment samples' in text and 'not applied' in text, text
+    assert 'Traceback' not in text, text
+    meta = yaml.safe_load((tmp_path / 'out' / 'bag' / 'metadata.yaml').read_text())
+    faults = yaml.safe_load(meta['rosbag2_bagfile_information']['custom_data'][
+        'emfc_ros.faults'])
+    gap = next(f for f in faults if f['kind'] == 'device_setpoint_gap')
+    assert gap['exact'] is True and gap['device_index'] > 0

@@ -47,13 +47,14 @@ from emfc_ros.core.device.sim_backend import CONFIGURED, RUNNING, SimulatedDevic
 
 #: Fault options and their meaning (the CLI's ``--faults`` keys).
 FAULT_KEYS = ('drop', 'duplicate', 'reorder', 'corrupt', 'delay_ms', 'stall_s',
-              'stall_after_s', 'die_after_s')
+              'stall_after_s', 'die_after_s', 'setpoint_drop')
 NETWORK_COUNTERS = ('frames_sent', 'foreign_datagrams', 'corrupt_datagrams',
                     'heartbeats_received', 'late_blocks', 'faults_dropped',
                     'faults_duplicated', 'faults_reordered', 'faults_corrupted',
                     'faults_stalled_frames', 'send_errors', 'foreign_requests',
                     'unauthenticated_datagrams', 'replayed_datagrams', 'unsolicited_datagrams',
-                    'setpoint_frames_stale', 'owner_changes', 'owner_takeovers')
+                    'setpoint_frames_stale', 'owner_changes', 'owner_takeovers',
+                    'faults_setpoint_dropped')
 #: Counters of datagrams the emulator refused (what someone else, or a stale session, sent).
 REFUSED_COUNTERS = ('foreign_requests', 'foreign_datagrams', 'unauthenticated_datagrams',
                     'replayed_datagrams', 'unsolicited_datagrams', 'corrupt_datagrams')
@@ -92,6 +93,9 @@ class Faults:
     die_after_s : float
         Close the socket and stop answering this long after the emulator started [s]
         (0: never).
+    setpoint_drop : float
+        Probability that a valid setpoint frame of the owner is lost on its way in (as on
+        the link): the device then fills the gap with the safe values.
     """
 
     drop: float = 0.0
@@ -102,6 +106,7 @@ class Faults:
     stall_s: float = 0.0
     stall_after_s: float = 1.0
     die_after_s: float = 0.0
+    setpoint_drop: float = 0.0
 
     def __post_init__(self) -> None:
         for key in FAULT_KEYS:
@@ -111,7 +116,7 @@ class Faults:
                 raise DeviceConfigError(f'fault {key} must be a finite number >= 0, got '
                                         f'{value!r}')
         probs = (self.drop, self.duplicate, self.reorder, self.corrupt)
-        if any(p > 1 for p in probs) or sum(probs) > 1.0 + 1e-12:
+        if any(p > 1 for p in probs) or sum(probs) > 1.0 + 1e-12 or self.setpoint_drop > 1:
             raise DeviceConfigError(f'fault probabilities must be in [0, 1] with a sum <= 1, '
                                     f'got {probs}')
 
@@ -255,6 +260,9 @@ class DeviceEmulator:
         self.boot_id = random.Random(seed ^ 0x5EED).getrandbits(32) ^ \
             (time.monotonic_ns() & 0xFFFFFFFF)
         self._rng = np.random.default_rng(seed)
+        self._setpoint_rng = np.random.default_rng(seed + 1)
+        #: First sample indices of the setpoint frames lost by the ``setpoint_drop`` fault.
+        self.dropped_setpoints: List[int] = []
         self._clock = clock
         self._sock: Optional[socket.socket] = None
         self._thread: Optional[threading.Thread] = None
@@ -605,6 +613,10 @@ class DeviceEmulator:
             return
         if dev.state != RUNNING or frame.epoch != dev.epoch:
             self.counters['setpoint_frames_stale'] += 1
+            return
+        if self.faults.setpoint_drop and self._setpoint_rng.random() < self.faults.setpoint_drop:
+            self.counters['faults_setpoint_dropped'] += 1
+            self.dropped_setpoints.append(frame.first_sample_index)
             return
         if frame.samples.shape[0] != len(dev.config.outputs):
             dev.reject_setpoints(frame.first_sample_index)

@@ -125,7 +125,7 @@ DEVICE_COUNTERS = (
     'faults_dropped', 'faults_duplicated', 'faults_reordered', 'faults_corrupted',
     'faults_stalled_frames', 'foreign_requests', 'unauthenticated_datagrams',
     'replayed_datagrams', 'unsolicited_datagrams', 'setpoint_frames_stale', 'owner_changes',
-    'owner_takeovers')
+    'owner_takeovers', 'faults_setpoint_dropped')
 
 
 def _crc(data: bytes) -> bytes:
