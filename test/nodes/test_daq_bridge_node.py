@@ -684,3 +684,33 @@ def test_the_readme_key_commands_run_as_typed(executor, ros_context, processes, 
     out = emulator.output()
     assert 'authentication: HMAC-SHA256 key device.key' in out, out
     assert 'refused datagrams: none' in out, out
+
+
+def test_the_executor_keeps_running_while_the_device_does_not_answer(executor, ros_context):
+    # A port nobody serves: every request to it waits its timeouts and retries (5 x 0.5 s).
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(('127.0.0.1', 0))
+    port = sock.getsockname()[1]
+    sock.close()
+    bridge = DaqBridgeNode(context=ros_context, parameter_overrides=bridge_params(
+        backend='udp', autostart=False, **{'udp.device_port': port,
+                                           'udp.request_timeout_s': 0.5}))
+    probe = Probe(ros_context)
+    setup_nodes(executor, bridge, probe.node)
+    answer = probe.call(executor, 'start')
+    # The service answered while the start still waits for the device in the worker...
+    assert answer.success and 'in the background' in answer.message
+    assert bridge.status_values()['device_busy'], bridge.status_values()
+    assert bridge.status_values()['state'] == 'starting'
+    # ...and the executor goes on meanwhile: diagnostics keep coming, services answer.
+    seen = len(probe.diagnostics)
+    assert ros_harness.spin_until(
+        executor, lambda: len(probe.diagnostics) >= seen + 3
+        or not bridge.status_values()['device_busy'], TIMEOUT_S)
+    assert bridge.status_values()['device_busy'], 'the start ended before 3 diagnostics'
+    assert probe.call(executor, 'emergency_stop').success
+    assert probe.diag('state') == 'starting'
+    # In the end the start fails, with the reason, and the node stays up.
+    assert ros_harness.spin_until(executor, lambda: bridge.status_values()['state'] == 'error',
+                                  TIMEOUT_S)
+    assert 'no response' in bridge.status_values()['last_error']
