@@ -117,6 +117,7 @@ def run(out: Path, experiment_file: Optional[str], timeout_s: float) -> int:
     from std_srvs.srv import Trigger
 
     from emfc_ros.core.blocks import Continuity, SequenceTracker
+    from emfc_ros.core.json_text import load_json_text
     from emfc_ros.nodes.convert import (
         BLOCK_QOS, CONTROL_QOS, LATCHED_QOS, msg_to_block, msg_to_description)
     from emfc_ros.nodes.signal_generator import SignalGeneratorNode
@@ -145,7 +146,12 @@ def run(out: Path, experiment_file: Optional[str], timeout_s: float) -> int:
         ack.publish(UInt64(data=block.end_index))
 
     def on_status(msg: String) -> None:
-        state['section'] = json.loads(msg.data).get('section', '')
+        try:
+            status = load_json_text(msg.data, 'signal generator status')
+            state['section'] = str(status.get('section', '')) if isinstance(status, dict) \
+                else ''
+        except ValueError:
+            state['malformed'] = state.get('malformed', 0) + 1
 
     monitor.create_subscription(String, 'excitation/description', on_description, LATCHED_QOS)
     monitor.create_subscription(String, 'signal_generator/status', on_status, LATCHED_QOS)

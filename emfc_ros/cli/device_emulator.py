@@ -3,14 +3,20 @@ emfc-device-emulator: the UDP device emulator (simulated balance inside) as a pr
 
 ``emfc-device-emulator [--bind 127.0.0.1] [--port N] [--config balance.yaml] [--channels 4]
 [--faults drop=0.01,duplicate=0.01,reorder=0.01,corrupt=0.01,delay_ms=5,stall_s=2,
-stall_after_s=1,die_after_s=30] [--seed S] [--duration-s T] [--allow-remote]
-[--load-mass-kg KG|balance] [--load-changer-coupled] [--no-noise]``
+stall_after_s=1,die_after_s=30,setpoint_drop=0.01] [--seed S] [--duration-s T]
+[--key-file device.key] [--allow-remote] [--load-mass-kg KG|balance] [--load-changer-coupled]
+[--no-noise]``
 
 The simulated balance carries ``--load-mass-kg`` on its pan (``balance``: the mass pieces
 that hold the lever at 0 with 0 V on the coil, as ``emfc-experiment`` loads its emulator;
 default 0: the empty pan, whose lever rests on its stop at 0 V). ``--no-noise`` leaves out
 the sensor and amplifier noise, so that two runs of one excitation give the same samples
 wherever the excitation starts on the device clock.
+
+With ``--key-file`` every datagram must be authenticated with that pre-shared key (the
+bridge's ``udp.key_file``); an unreadable, group- or world-readable, non-hex or short key
+file is refused (exit 2). On exit it prints its counters of refused datagrams (foreign,
+unauthenticated, replayed...) to stderr.
 
 Prints the bound UDP port alone on the first line of stdout (``--port 0``, the default,
 picks a free one), then serves until SIGINT or SIGTERM, ``--duration-s`` or the injected
@@ -31,7 +37,9 @@ import time
 from typing import Any, List, Optional
 
 from emfc_ros.core.control.loop_config import loop_config
-from emfc_ros.core.device.emulator import check_bind_host, DeviceEmulator, Faults
+from emfc_ros.core.device.auth import load_key_file
+from emfc_ros.core.device.emulator import (check_bind_host, DeviceEmulator, Faults,
+                                           REFUSED_COUNTERS)
 from emfc_ros.core.device.sim_backend import load_parameters
 
 PROG = 'emfc-device-emulator'
@@ -50,7 +58,8 @@ def _parser() -> argparse.ArgumentParser:
                         help='analog inputs of the device: most channels a host may select')
     parser.add_argument('--faults', default='', help='comma-separated key=value faults: drop, '
                         'duplicate, reorder, corrupt (probabilities), delay_ms, stall_s, '
-                        'stall_after_s, die_after_s')
+                        'stall_after_s, die_after_s, setpoint_drop (setpoint frames lost on '
+                        'their way in)')
     parser.add_argument('--seed', type=int, default=0, help='noise and fault seed')
     parser.add_argument('--duration-s', type=float, default=0.0,
                         help='stop after this long (default 0: run until interrupted)')
@@ -69,6 +78,9 @@ def _parser() -> argparse.ArgumentParser:
                         help="the load changer's moving mass rides on the pan")
     parser.add_argument('--no-noise', action='store_true',
                         help='no sensor and amplifier noise (deterministic samples)')
+    parser.add_argument('--key-file', default='',
+                        help='pre-shared key file (hex, mode 600): accept only datagrams '
+                             'authenticated with it (HMAC-SHA256), sign every reply and frame')
     parser.add_argument('--allow-remote', action='store_true',
                         help='permit a non-loopback bind address (exposes the emulator)')
     return parser
@@ -124,9 +136,11 @@ def main(argv: Optional[List[str]] = None) -> int:
             options['control'] = loop_config({'crossover_Hz': args.control_crossover_Hz,
                                               'rate_Hz': args.control_rate_Hz,
                                               'notch_Hz': args.control_notch_Hz}, '--control')
+        key = load_key_file(args.key_file) if args.key_file else None
         emulator = DeviceEmulator(host, args.port, params=params, seed=args.seed,
                                   max_inputs=args.channels, faults=faults,
-                                  allow_remote=args.allow_remote, simulator_options=options)
+                                  allow_remote=args.allow_remote, simulator_options=options,
+                                  key=key)
         port = emulator.start()
     except (ValueError, OSError) as exc:
         print(f'{PROG}: error: {exc}', file=sys.stderr)
@@ -136,7 +150,8 @@ def main(argv: Optional[List[str]] = None) -> int:
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, lambda *_: stop.set())
     print(port, flush=True)
-    print(f'{PROG}: listening on {host}:{port} (faults: {args.faults or "none"})',
+    print(f'{PROG}: listening on {host}:{port} (faults: {args.faults or "none"}, '
+          f'authentication: {"HMAC-SHA256 key " + args.key_file if key else "none"})',
           file=sys.stderr, flush=True)
     end = time.monotonic() + args.duration_s if args.duration_s > 0 else float('inf')
     try:
@@ -146,6 +161,10 @@ def main(argv: Optional[List[str]] = None) -> int:
         pass
     died = emulator.dead.is_set()
     emulator.stop()
+    counters = emulator.all_counters()
+    refused = ', '.join(f'{name} {counters[name]}' for name in REFUSED_COUNTERS
+                        if counters.get(name))
+    print(f'{PROG}: refused datagrams: {refused or "none"}', file=sys.stderr)
     if emulator.error is not None:
         print(f'{PROG}: device thread failed: {emulator.error!r}', file=sys.stderr)
         return 1

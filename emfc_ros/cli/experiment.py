@@ -34,6 +34,8 @@ from emfc_ros.core.run_plan import load_plan, runner_state_wall_rate_Hz, RunPlan
 from emfc_ros.core.stream_counts import CUSTOM_DATA_KEY, markdown, problems
 
 DEFAULT_PLAN = 'experiment_default.yaml'
+#: Longest wait for the daq_bridge to start or stop the device (its worker thread) [s].
+START_WAIT_S = 30.0
 
 
 class Phases:
@@ -339,6 +341,7 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
     from std_srvs.srv import Trigger
 
     from emfc_ros.core.blocks import SequenceTracker, StreamDescription
+    from emfc_ros.core.json_text import load_json_text
     from emfc_ros.core.model.parameters import BalanceParameters
     from emfc_ros.core.signals import experiment_from_config
     from emfc_ros.core.sim.balancing import balancing_load_mass_kg
@@ -441,7 +444,13 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
         nodes.append(runner)
 
         seen = {'samples': 0, 'blocks': 0, 'end': 0, 'epochs': set(), 'status': {},
-                'offset': None}
+                'offset': None, 'malformed': 0}
+
+        def malformed(what: str, exc: Exception) -> None:
+            """A description or status that did not parse: counted, said once, ignored."""
+            seen['malformed'] += 1
+            if seen['malformed'] == 1:
+                _progress(f'  warning: malformed {what} ignored: {exc}')
         tracker = SequenceTracker()
 
         def on_measurements(msg: Float64MultiArray) -> None:
@@ -455,17 +464,26 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
         def on_description(msg: String) -> None:
             try:
                 extra = StreamDescription.from_json(msg.data).extra
-            except ValueError:
+            except ValueError as exc:           # BlockError: malformed, too deep, too large
+                malformed('measurement description', exc)
                 return
             seen['offset'] = extra.get('excitation_offset_samples')
+
+        def on_status(msg: String) -> None:
+            try:
+                status = load_json_text(msg.data, 'signal generator status')
+                if not isinstance(status, dict):
+                    raise ValueError(f'expected a JSON object, got {type(status).__name__}')
+            except ValueError as exc:
+                malformed('signal generator status', exc)
+                return
+            seen['status'].update(status)
 
         runner.create_subscription(Float64MultiArray, 'measurements', on_measurements,
                                    BLOCK_QOS)
         runner.create_subscription(String, 'measurements/description', on_description,
                                    LATCHED_QOS)
-        runner.create_subscription(
-            String, 'signal_generator/status',
-            lambda m: seen['status'].update(json.loads(m.data)), LATCHED_QOS)
+        runner.create_subscription(String, 'signal_generator/status', on_status, LATCHED_QOS)
         clients = {name: runner.create_client(Trigger, name) for name in (
             'signal_generator/start', 'recorder/start', 'recorder/stop', 'daq_bridge/start',
             'daq_bridge/stop')}
@@ -526,7 +544,18 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
             if not answer.success:
                 raise RuntimeError(f'{device_name} could not start the device '
                                    f'({plan.bridge.backend} back-end): {answer.message}')
-            _progress(f'  {device_name}: {answer.message}')
+            # The bridge starts the device in its worker thread (the executor never waits
+            # for the device); its status says when that ended.
+            if not spin_until(lambda: device_node.status_values()['state']
+                              in ('running', 'error'), START_WAIT_S):
+                raise RuntimeError(f'{device_name} did not start the device in '
+                                   f'{START_WAIT_S:g} s: {device_node.status_values()}')
+            state = device_node.status_values()
+            if state['state'] != 'running':
+                raise RuntimeError(f'{device_name} could not start the device '
+                                   f'({plan.bridge.backend} back-end): '
+                                   f'{state["last_error"] or state["error"]}')
+            _progress(f'  {device_name}: started, stream epoch {state["stream_epoch"]}')
 
         phases.start('experiment')
         answer = call('signal_generator/start')
@@ -577,8 +606,13 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
         if on_bridge:
             # Outputs to their safe values and no more blocks: the stream has an end.
             answer = call('daq_bridge/stop')
-            if not answer.success:
-                _progress(f'  {device_name}: stop: {answer.message}')
+            if answer.success:
+                spin_until(lambda: device_node.status_values()['state']
+                           not in ('running', 'stopping'), START_WAIT_S)
+            state = device_node.status_values()
+            if not answer.success or state['state'] != 'stopped':
+                _progress(f'  {device_name}: stop: {answer.message} (state {state["state"]}, '
+                          f'{state["last_error"]})')
         measurement_topic = f'{ns}/measurements'
         # Everything the runner received has been published; wait (bounded) until the
         # recorder has written as many measurement blocks, then close the bag.
@@ -607,6 +641,7 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
         info = {'total_samples': total, 'sample_rate_Hz': rate, 'bag': str(bag),
                 'load_mass_kg': load_kg, 'load_changer_coupled': coupled,
                 'measurement_blocks_received': seen['blocks'],
+                'malformed_descriptions_or_status': seen['malformed'],
                 'measurement_stream': tracker.counters(),
                 'written_messages': written, 'stream_counts': counts}
         if on_bridge:
@@ -627,16 +662,22 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
 
 def _start_emulator(plan: RunPlan, params: Any, load_kg: float, coupled: bool) -> Any:
     """Start the device emulator in this process (loopback only), loaded like the plan."""
+    from emfc_ros.core.device.auth import KeyFileError, load_key_file
     from emfc_ros.core.device.emulator import DeviceEmulator
 
     emu = plan.bridge.emulator
-    emulator = DeviceEmulator(emu.host, emu.port, params=params, seed=emu.seed,
-                              max_inputs=emu.channels, simulator_options={
-                                  'load_mass_kg': float(load_kg),
-                                  'load_changer_coupled': bool(coupled),
-                                  'noise': emu.noise, 'quantisation': emu.quantisation})
+    # The bridge's key file, if any: the emulator speaks with the same key.
+    key_file = str(plan.bridge.parameters.get('udp.key_file') or '')
     try:
+        emulator = DeviceEmulator(emu.host, emu.port, params=params, seed=emu.seed,
+                                  max_inputs=emu.channels, simulator_options={
+                                      'load_mass_kg': float(load_kg),
+                                      'load_changer_coupled': bool(coupled),
+                                      'noise': emu.noise, 'quantisation': emu.quantisation},
+                                  key=load_key_file(key_file) if key_file else None)
         emulator.start()
+    except KeyFileError as exc:
+        raise RuntimeError(f'cannot start the device emulator: {exc}') from None
     except OSError as exc:
         raise RuntimeError(f'cannot start the device emulator on {emu.host}:{emu.port}: '
                            f'{exc}') from exc

@@ -32,6 +32,7 @@ from typing import Any, Optional, Sequence, Tuple
 import numpy as np
 
 from emfc_ros.core.errors import BlockError
+from emfc_ros.core.json_text import load_json_text
 
 CONVENTION = 'emfc_ros/block/1'
 HEADER_FIELDS = ('first_sample_index', 'sample_rate_Hz', 'epoch')
@@ -148,10 +149,14 @@ class StreamDescription:
         Raises
         ------
         BlockError
-            If the document is not a description of this convention.
+            If the document is not a description of this convention, malformed, larger than
+            4 MiB or nested more than 64 levels deep (never another exception).
         """
         try:
-            doc = json.loads(text)
+            doc = load_json_text(text, 'stream description')
+            if not isinstance(doc, dict):
+                raise BlockError(f'a stream description is a JSON object, got '
+                                 f'{type(doc).__name__}')
             if doc.get('convention') != CONVENTION:
                 raise BlockError(
                     f'description convention {doc.get("convention")!r} is not {CONVENTION!r}')
@@ -164,8 +169,8 @@ class StreamDescription:
                        source=str(doc.get('source', '')), extra=dict(doc.get('extra', {})))
         except BlockError:
             raise
-        except (ValueError, KeyError, TypeError) as exc:
-            raise BlockError(f'malformed stream description: {exc}') from exc
+        except (ValueError, KeyError, TypeError, AttributeError, RecursionError) as exc:
+            raise BlockError(f'malformed stream description: {exc}') from None
 
 
 @dataclasses.dataclass(frozen=True)

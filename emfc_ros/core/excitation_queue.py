@@ -20,7 +20,7 @@ ahead is followed once :data:`RESYNC_BLOCKS` contiguous blocks confirm the new p
 from __future__ import annotations
 
 import collections
-from typing import Deque, Sequence, Tuple
+from typing import Deque, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -113,6 +113,8 @@ class ExcitationQueue:
         self.epoch = None
         self.underrun_samples = 0
         self.gap_filled_samples = 0
+        #: Index of the first sample a gap filled (or a resynchronisation skipped); None.
+        self.first_gap_index: Optional[int] = None
         self.dropped_blocks = 0
         self.overflow_blocks = 0
         self.resyncs = 0
@@ -167,6 +169,8 @@ class ExcitationQueue:
             self.epoch = block.epoch
         elif kind is Continuity.GAP:
             missing = block.first_sample_index - expected
+            if self.first_gap_index is None:
+                self.first_gap_index = expected
             if self._queued + missing + block.n_samples <= self.max_samples:
                 self._append(np.repeat(self.safe, missing, axis=1))
                 self.gap_filled_samples += missing

@@ -22,12 +22,18 @@ run unchanged on hardware. Topics (relative to the node namespace):
   arrival-to-publication latency.
 
 Services (``std_srvs/Trigger``): ``~/start``, ``~/stop`` (acquisition), ``~/emergency_stop``
-(outputs to their safe values at once, latched) and ``~/reset`` (release the e-stop).
+(outputs to their safe values at once, latched) and ``~/reset`` (release the e-stop). Nothing
+that waits for the device runs on the executor: start, stop, the safe-output and generator
+requests run in order in one worker thread (:class:`~emfc_ros.core.device.jobs.DeviceJobs`);
+``~/start`` and ``~/stop`` answer at once that the request is under way, and ``~/status``
+(``std_msgs/String``, latched JSON) says how it ended (``state``: ``starting``, ``running``,
+``stopping``, ``stopped`` or ``error``, with ``error``, ``last_error``).
 """
 
 from __future__ import annotations
 
 import collections
+import json
 import math
 import threading
 import time
@@ -46,12 +52,15 @@ from std_msgs.msg import Float64MultiArray, String, UInt64
 from std_srvs.srv import Trigger
 
 from emfc_ros.core.blocks import Block, Channel, Continuity, SequenceTracker, StreamDescription
-from emfc_ros.core.device.backend import (create_backend, DEFAULT_INPUTS, DEFAULT_OUTPUTS,
+from emfc_ros.core.device.backend import (check_generator_range, create_backend,
+                                          DEFAULT_INPUTS, DEFAULT_OUTPUTS,
                                           device_config_from_mapping, DeviceConfig)
 from emfc_ros.core.device.errors import DeviceConfigError, DeviceError
 from emfc_ros.core.device.faults import describe, Fault, FaultMonitor
 from emfc_ros.core.device.function_generator import GeneratorSpec, make_signal
+from emfc_ros.core.device.jobs import DeviceJobs
 from emfc_ros.core.device.sim_backend import load_parameters
+from emfc_ros.core.device.udp_backend import INTRUSION_COUNTERS
 from emfc_ros.core.errors import BlockError, ConfigError
 from emfc_ros.core.excitation_queue import DROPPED, ExcitationQueue, JumpGuard
 from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V
@@ -124,6 +133,9 @@ PARAMETERS: Dict[str, Tuple[Any, str]] = {
     'udp.reorder_window': (8, 'frames the reorder buffer spans before declaring a gap'),
     'udp.reorder_timeout_s': (0.2, 'longest wait for a missing frame [s], (0, 60]'),
     'udp.setpoint_format': ('float64', "setpoint frame format: 'float64' or 'int16'"),
+    'udp.key_file': ('', 'pre-shared key file (hex text, at least 32 hex digits, mode 600) '
+                         'to authenticate every datagram with HMAC-SHA256; the device needs '
+                         'the same key; empty: no authentication'),
     'replay.bag': ('', 'replay: the bag folder'),
     'replay.topic': ('', "replay: block topic to replay; empty: the bag's */measurements"),
     'replay.pacing': ('receive_time', "replay: 'receive_time' (the original block timing), "
@@ -272,6 +284,11 @@ class DaqBridgeNode(Node):
                 self._runtime[name] = float(PARAMETERS[name][0])
         self._lock = threading.RLock()
         self._start_lock = threading.Lock()
+        # Everything that waits for the device runs here, in order, never on the executor.
+        self._jobs = DeviceJobs('daq-bridge-device')
+        self._worker_faults: List[Tuple[str, Optional[int], str]] = []
+        self._retry_at: Optional[float] = None
+        self._autostart_active = False
         self._error = ''
         self._last_error = ''
         self._state = 'idle'
@@ -308,6 +325,7 @@ class DaqBridgeNode(Node):
             self._state = 'error'
             self.get_logger().error(self._error)
         self._make_publishers()
+        self._pub_status = self.create_publisher(String, '~/status', LATCHED_QOS)
         self._pub_ack = self.create_publisher(UInt64, 'excitation/consumed', CONTROL_QOS)
         self._pub_state = self.create_publisher(JointState, 'joint_states', STATE_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
@@ -326,68 +344,103 @@ class DaqBridgeNode(Node):
         self.create_timer(min(60.0, max(0.05, period)), self._publish_diagnostics,
                           clock=steady_clock())
         self.create_timer(0.01, self._watchdog_tick, clock=steady_clock())
-        self._retry_timer = None
-        self._retry_worker: Optional[threading.Thread] = None
-        self._listener_timer = None
+        self._sim_timer = None
+        if getattr(self._backend, 'name', '') == 'sim':
+            # Created once: the worker thread that starts and stops never creates timers.
+            block = self._config.block_size
+            period = min(0.02, max(0.001, 0.5 * block / self._rate))
+            self._sim_timer = self.create_timer(period, self._sim_tick, clock=steady_clock())
+        self._holding = hold
+        self._wanted = wanted
+        self._publish_status()
         if self._backend is not None and self._param('autostart'):
+            self._autostart_active = True
             if hold:
                 self.get_logger().info(f'waiting for {wanted} subscription(s) to measurements '
                                        'before starting')
-                self._listener_timer = self.create_timer(
-                    0.05, lambda: self._start_when_listened(wanted), clock=steady_clock())
             else:
-                self._autostart()
+                self._request_start('autostart')
+            self.create_timer(0.05, self._autostart_tick, clock=steady_clock())
 
-    def _autostart(self) -> None:
-        """Start the device; retry every RETRY_PERIOD_S while it does not answer."""
+    # -- starting and stopping, off the executor ------------------------------------------
+
+    def _request_start(self, why: str) -> str:
+        """Queue a start in the worker thread; say what happens."""
+        if self._state == 'running':
+            return 'already running'
+        self._set_state('starting')
+        self._jobs.submit('start', self._start_job, why)
+        return ('start requested: configuring and starting the device in the background; '
+                '~/status says when it runs (state running) or why not (state error)')
+
+    def _start_job(self, why: str) -> Tuple[bool, str]:
         ok, message = self._start()
-        if not ok:
-            self.get_logger().error(f'{message}; retrying every {RETRY_PERIOD_S} s')
-            self._retry_timer = self.create_timer(RETRY_PERIOD_S, self._retry_start,
-                                                  clock=steady_clock())
+        if ok:
+            self._retry_at = None
+            self.get_logger().info(f'{why}: {message}')
+        elif why == 'autostart' and self._autostart_active:
+            self._retry_at = time.monotonic() + RETRY_PERIOD_S
+            self.get_logger().error(f'{message}; retrying every {RETRY_PERIOD_S} s',
+                                    throttle_duration_sec=30.0)
+        else:
+            self.get_logger().error(message)
+        return ok, message
 
-    def _start_when_listened(self, wanted: int) -> None:
-        """Autostart once ``min_subscribers`` subscriptions to measurements matched."""
-        matched = self._pub['measurements'].get_subscription_count()
-        if matched < wanted or self._listener_timer is None:
+    def _autostart_tick(self) -> None:
+        """Autostart: once listeners matched (min_subscribers), and retries of a silent device."""
+        if not self._autostart_active:
             return
-        self._end_hold()
-        if self._state == 'running':        # started through ~/start meanwhile
+        if self._holding:
+            matched = self._pub['measurements'].get_subscription_count()
+            if matched < self._wanted:
+                return
+            self._end_hold()
+            if self._state in ('running', 'starting'):     # started through ~/start
+                return
+            self.get_logger().info(f'{matched} subscription(s) to measurements matched: '
+                                   'starting')
+            self._request_start('autostart')
             return
-        self.get_logger().info(f'{matched} subscription(s) to measurements matched: starting')
-        self._autostart()
+        due = self._retry_at
+        if due is not None and time.monotonic() >= due and not self._jobs.pending('start'):
+            self._retry_at = None
+            if self._state != 'running':
+                self._request_start('autostart')
 
     def _end_hold(self) -> None:
         """Stop waiting for listeners (min_subscribers) and subscribe to the excitation."""
-        if self._listener_timer is not None:
-            self.destroy_timer(self._listener_timer)
-            self._listener_timer = None
+        if self._holding:
+            self._holding = False
             subscribe_excitation(self, self._on_excitation)
 
-    def _retry_start(self) -> None:
-        """Autostart: try again until the device answers (or someone calls a service)."""
-        if self._state == 'running' or self._retry_timer is None:
-            self._cancel_retry()
-            return
-        if self._retry_worker is not None and self._retry_worker.is_alive():
-            return
-        # A device that does not answer costs its request timeouts and retries (about a
-        # second): the attempt runs in a thread, so the executor never waits for it.
-        self._retry_worker = threading.Thread(target=self._retry_attempt, daemon=True,
-                                              name='daq-bridge-retry')
-        self._retry_worker.start()
-
-    def _retry_attempt(self) -> None:
-        ok, message = self._start()
-        if ok:
-            self.get_logger().info(f'device answered: {message}')
-        else:
-            self.get_logger().warning(message, throttle_duration_sec=30.0)
-
     def _cancel_retry(self) -> None:
-        if self._retry_timer is not None:
-            self.destroy_timer(self._retry_timer)
-            self._retry_timer = None
+        self._autostart_active = False
+        self._retry_at = None
+
+    def _set_state(self, state: str) -> None:
+        self._state = state
+        self._publish_status()
+
+    def status_values(self) -> Dict[str, Any]:
+        """
+        What ``~/status`` says: the state and why.
+
+        Returns
+        -------
+        dict
+            ``state``, ``error``, ``last_error``, ``stream_epoch``, ``faults`` (count),
+            ``device_busy`` (a request to the device under way).
+        """
+        return {'state': self._state, 'error': self._error, 'last_error': self._last_error,
+                'stream_epoch': self._epoch if self._epoch is not None else -1,
+                'faults': len(self._monitor.faults), 'device_busy': self._jobs.pending()}
+
+    def _publish_status(self) -> None:
+        try:
+            self._pub_status.publish(String(data=json.dumps(self.status_values())))
+        except Exception:   # noqa: B902 during shutdown the publisher may be gone
+            if self.context.ok():
+                raise
 
     # -- configuration ---------------------------------------------------------------------
 
@@ -452,7 +505,8 @@ class DaqBridgeNode(Node):
                     device_timeout_s=float(self._param('udp.device_timeout_s')),
                     reorder_window=int(self._param('udp.reorder_window')),
                     reorder_timeout_s=float(self._param('udp.reorder_timeout_s')),
-                    setpoint_format=str(self._param('udp.setpoint_format')))
+                    setpoint_format=str(self._param('udp.setpoint_format')),
+                    key_file=str(self._param('udp.key_file')) or None)
             else:
                 load = float(self._param('sim.load_mass_kg'))
                 if not 0.0 <= load <= 2.0:
@@ -508,6 +562,9 @@ class DaqBridgeNode(Node):
             try:
                 spec = GeneratorSpec(**fields)
                 make_signal(spec, config.sample_rate_Hz)
+                check_generator_range([spec], DeviceConfig(
+                    config.sample_rate_Hz, config.block_size, config.inputs, (out,),
+                    config.watchdog_timeout_s))
             except (DeviceConfigError, TypeError) as exc:
                 raise ConfigError(f'funcgen.{key}', str(exc)) from None
             specs.append(spec)
@@ -549,11 +606,9 @@ class DaqBridgeNode(Node):
             if self._mode == 'function_generator':
                 self._specs = specs
                 if self._state == 'running' and not (self._estop or self._tripped):
-                    try:
-                        self._backend.set_function_generator(specs)
-                    except (DeviceError, DeviceConfigError) as exc:
-                        return SetParametersResult(successful=False,
-                                                   reason=f'device refused: {exc}')
+                    # Checked like the device checks it; sent by the worker thread (a
+                    # refusal then is a generator_unconfirmed fault).
+                    self._jobs.submit('set_generator', self._set_generator)
         for p in params:
             if p.name in RUNTIME:
                 self._runtime[p.name] = float(p.value)
@@ -592,10 +647,12 @@ class DaqBridgeNode(Node):
             specs = self._safe_specs() if self._estop else self._specs
             if self._estop or self._mode == 'function_generator':
                 self._backend.set_function_generator(specs)
+            # The START request waits for the device: not with the lock the executor's
+            # callbacks take (no block of the new epoch is read before the state is reset).
+            epoch = self._backend.start()
             with self._lock:
                 self._reset_stream_state()
                 self._tripped = False
-                epoch = self._backend.start()
                 self._t_start = time.monotonic()
                 self._anchor_ns = time.monotonic_ns()
                 self._start_time_ns = self.get_clock().now().nanoseconds
@@ -605,44 +662,52 @@ class DaqBridgeNode(Node):
                     self._monitor.add('emergency_stop', 0, None,
                                       'emergency stop latched: outputs at their safe values')
         except (DeviceError, DeviceConfigError) as exc:
-            self._state = 'error'
             self._last_error = f'start failed: {exc}'
+            self._set_state('error')
             return False, self._last_error
-        self._state = 'running'
         self._error = ''
-        self._publish_descriptions()
         self._reader_stop.clear()
-        if getattr(self._backend, 'name', '') == 'sim':
-            block = self._config.block_size
-            period = min(0.02, max(0.001, 0.5 * block / self._rate))
-            self._sim_timer = self.create_timer(period, self._sim_tick, clock=steady_clock())
-        else:
+        self._set_state('running')
+        self._publish_descriptions()
+        if getattr(self._backend, 'name', '') != 'sim':      # sim: the timer reads
             self._reader = threading.Thread(target=self._read_loop, daemon=True,
                                             name='daq-bridge-reader')
             self._reader.start()
         return True, f'started: epoch {epoch}'
 
     def _stop(self) -> Tuple[bool, str]:
-        if self._state != 'running':
+        """Stop the acquisition (the worker thread, or destroy_node): waits for the device."""
+        if self._state not in ('running', 'stopping'):
             return True, 'not running'
         self._reader_stop.set()
         if self._reader is not None:
             self._reader.join(5.0)
             self._reader = None
-        if self._sim_timer is not None:
-            self.destroy_timer(self._sim_timer)
-            self._sim_timer = None
-        self._state = 'stopped'
         try:
             self._backend.stop()
         except DeviceError as exc:
             self._last_error = f'stop: {exc}'
+            self._set_state('stopped')
             return False, self._last_error
+        self._set_state('stopped')
         return True, 'stopped: outputs at their safe values'
+
+    def _request_stop(self) -> str:
+        """Queue a stop in the worker thread; say what happens."""
+        if self._state not in ('running', 'starting', 'stopping'):
+            return 'not running'
+        if self._state == 'running':
+            self._set_state('stopping')
+        self._jobs.submit('stop', self._stop)
+        return ('stop requested: stopping the device in the background (its outputs go to '
+                'their safe values); ~/status says when it has (state stopped)')
 
     def destroy_node(self) -> None:
         """Stop the acquisition and release the back-end, then destroy the node."""
         try:
+            self._cancel_retry()
+            if not self._jobs.close(timeout_s=10.0):
+                self.get_logger().warning('a device request still runs at shutdown')
             self._stop()
         finally:
             if self._backend is not None:
@@ -675,6 +740,8 @@ class DaqBridgeNode(Node):
                 self._last_error = f'publishing a block: {exc}'
 
     def _sim_tick(self) -> None:
+        if self._state != 'running':
+            return
         block = self._config.block_size
         due = int((time.monotonic() - self._t_start) * self._rate)
         for _ in range(64):
@@ -841,7 +908,7 @@ class DaqBridgeNode(Node):
             self._last_excitation = time.monotonic()
             if self._tripped:
                 self._tripped = False
-                self._restore_generator()
+                self._jobs.submit('restore_generator', self._restore_generator)
                 if kind not in (Continuity.FIRST, Continuity.RESTART):
                     # The same stream goes on after a gap the outputs spent at their safe
                     # values: the samples between were not applied.
@@ -879,19 +946,41 @@ class DaqBridgeNode(Node):
         return [GeneratorSpec('constant', offset_V=float(v)) for v in self._safe]
 
     def _restore_generator(self) -> None:
+        """The generator back to its configuration (worker thread)."""
+        if self._state != 'running':
+            return
         try:
             self._backend.set_function_generator(self._specs)
         except (DeviceError, DeviceConfigError) as exc:
-            self._last_error = f'function generator restore failed: {exc}'
+            self._worker_fault('generator_unconfirmed', f'the device did not confirm the '
+                               f'function generator restored after a safe-output hold ({exc}): '
+                               'its outputs may still be at their safe values')
+
+    def _set_generator(self) -> None:
+        """A run-time change of the generator (worker thread): the latest specs."""
+        if self._state != 'running' or self._estop or self._tripped:
+            return
+        try:
+            self._backend.set_function_generator(self._specs)
+        except (DeviceError, DeviceConfigError) as exc:
+            self._worker_fault('generator_unconfirmed', f'the device did not confirm the '
+                               f'changed function generator ({exc}): it may still output the '
+                               'previous one')
+
+    def _worker_fault(self, kind: str, message: str) -> None:
+        """A fault the worker saw: latched by the executor's next watchdog tick."""
+        self._last_error = message
+        with self._lock:
+            self._worker_faults.append((kind, self._device_index_now(), message))
 
     def _drive_safe(self, why: str) -> str:
         """
         Outputs to their safe values now: safe setpoints at once, the device's generator.
 
-        The generator request (with its retries, seconds when the device is gone) runs in a
-        thread of its own, so the executor never waits for the device; a refusal is latched
-        as a ``safe_outputs_unconfirmed`` fault and stops the device (STOP also drives the
-        outputs safe).
+        The generator request (with its retries, seconds when the device is gone) runs in the
+        worker thread, so the executor never waits for the device; a refusal is latched as a
+        ``safe_outputs_unconfirmed`` fault and stops the device (STOP also drives the
+        outputs safe), in the worker too.
         """
         with self._lock:
             self._queue = ExcitationQueue(self._safe)
@@ -899,14 +988,14 @@ class DaqBridgeNode(Node):
             self._command_N = 0.0
         index = self._device_index_now()
         self._counts[f'{why}_device_index'] = index
-        threading.Thread(target=self._confirm_safe, args=(why,), daemon=True,
-                         name='daq-bridge-safe').start()
+        self._jobs.submit('safe_outputs', self._confirm_safe, why)
         return f'outputs to {self._safe.tolist()} V from about device sample {index}'
 
     def _confirm_safe(self, why: str) -> None:
-        backend = self._backend
+        if self._state != 'running':
+            return                          # stopped meanwhile: STOP drove them safe
         try:
-            backend.set_function_generator(self._safe_specs())
+            self._backend.set_function_generator(self._safe_specs())
         except (DeviceError, DeviceConfigError) as exc:
             self._safe_failed = f'{why}: the device did not confirm the safe outputs ({exc})'
             return
@@ -927,6 +1016,7 @@ class DaqBridgeNode(Node):
             self.get_logger().error(f'fault: {line}')
         self._publish_descriptions()
         self._publish_diagnostics()
+        self._publish_status()
 
     def published_counts(self) -> Dict[str, Dict[str, int]]:
         """
@@ -957,12 +1047,17 @@ class DaqBridgeNode(Node):
     def _watchdog_tick(self) -> None:
         if self._state != 'running':
             return
+        with self._lock:
+            found, self._worker_faults = self._worker_faults, []
+        if found:
+            self._latch([self._monitor.add(kind, index, None, message)
+                         for kind, index, message in found])
         if self._safe_failed:
             message, self._safe_failed = self._safe_failed, ''
             self._last_error = message
             self._latch([self._monitor.add('safe_outputs_unconfirmed',
                                            self._device_index_now(), None, message)])
-            self._stop()
+            self._request_stop()            # STOP drives the outputs safe (worker thread)
             return
         new = self._monitor.observe(self._health(), self._device_index_now(),
                                     self._last_end or 0,
@@ -1019,19 +1114,25 @@ class DaqBridgeNode(Node):
         self._tripped = False
         self._last_excitation = None
         if self._state == 'running':
-            self._restore_generator()
+            self._jobs.submit('restore_generator', self._restore_generator)
         response.success = True
-        response.message = 'emergency stop released: outputs follow the excitation again'
+        response.message = ('emergency stop released: outputs follow the excitation again '
+                            '(the generator is restored in the background)')
         return response
 
     def _srv_start(self, request: Trigger.Request, response: Trigger.Response):
+        # Answers at once: the device's answer (or its silence, seconds of retries) is
+        # waited for in the worker thread; ~/status says how the start ended.
+        if self._backend is None:
+            response.success, response.message = False, self._error or 'no back-end'
+            return response
         self._end_hold()                    # an explicit start does not wait for listeners
-        response.success, response.message = self._start()
+        response.success, response.message = True, self._request_start('~/start')
         return response
 
     def _srv_stop(self, request: Trigger.Request, response: Trigger.Response):
         self._cancel_retry()
-        response.success, response.message = self._stop()
+        response.success, response.message = True, self._request_stop()
         return response
 
     # -- controller interface ------------------------------------------------------------------
@@ -1206,13 +1307,18 @@ class DaqBridgeNode(Node):
         values = self.diagnostic_values()
         defects = sum(int(values.get(k, 0) or 0) for k in (
             'gaps', 'duplicates', 'reordered', 'corrupt', 'late', 'heartbeat_misses',
-            'reconnects', 'foreign', 'excitation_gaps', 'excitation_duplicates',
+            'reconnects', 'excitation_gaps', 'excitation_duplicates',
             'excitation_reordered', 'excitation_overlaps', 'excitation_malformed',
             'published_gaps', 'malformed_blocks'))
+        intrusions = {k: int(values.get(k, 0) or 0) for k in INTRUSION_COUNTERS}
         level = DiagnosticStatus.OK
         message = 'ok'
         if defects or values['clamped_samples']:
             level, message = DiagnosticStatus.WARN, 'stream defects or clamped setpoints'
+        if any(intrusions.values()):
+            level = DiagnosticStatus.WARN
+            message = 'datagrams refused (not from the device, our session or our key): ' + \
+                ', '.join(f'{k} {v}' for k, v in intrusions.items() if v)
         if self._tripped:
             level, message = DiagnosticStatus.WARN, 'excitation watchdog tripped: outputs safe'
         if self._estop:

@@ -59,6 +59,7 @@ from emfc_ros.core.bag.qos import DURABILITY, HISTORY, LIVELINESS, policy_name, 
 from emfc_ros.core.config import unflatten
 from emfc_ros.core.device.faults import faults_from_extra
 from emfc_ros.core.errors import ConfigError
+from emfc_ros.core.json_text import load_json_text
 from emfc_ros.core.safe_yaml import load_yaml_text, one_line, YamlRefused
 from emfc_ros.nodes.convert import LATCHED_QOS, node_diagnostics
 from emfc_ros.nodes.params import declare_table, pending_refusals, refuse_unknown
@@ -293,6 +294,9 @@ class RecorderNode(Node):
         self._writer: Optional[QueuedBagWriter] = None
         self._recorded: Dict[str, Tuple[object, int]] = {}
         self._faults: Dict[tuple, dict] = {}
+        # Descriptions and experiment documents that did not parse (recorded anyway).
+        self._bad_descriptions = 0
+        self._bad_description_error = ''
         self._unrecordable: Dict[str, str] = {}
         self._fetches: Dict[str, _ParameterFetch] = {}
         self._node_parameters: Dict[str, dict] = {}
@@ -508,12 +512,21 @@ class RecorderNode(Node):
         self.get_logger().info(f'recording {topic} ({msgtype}, {qos.reliability.name}, '
                                f'{qos.durability.name})')
 
+    def _bad_description(self, topic: str, exc: Exception) -> None:
+        """A description that did not parse: recorded as it came, counted and reported."""
+        self._bad_descriptions += 1
+        self._bad_description_error = f'{topic}: {exc}'
+        self.get_logger().warning(f'malformed description on {topic} (recorded as received, '
+                                  f'not interpreted): {exc}', throttle_duration_sec=5.0)
+
     def _on_description(self, raw: bytes) -> None:
         if self._param('experiment_description') or self._writer is None:
             return
         try:
-            doc = json.loads(deserialize_message(raw, String).data)
-        except (ValueError, TypeError):
+            doc = load_json_text(deserialize_message(raw, String).data,
+                                 'experiment description')
+        except (ValueError, TypeError) as exc:
+            self._bad_description('excitation/description', exc)
             return
         self._writer.set_custom_data('emfc_ros.experiment', yaml.safe_dump(
             doc, default_flow_style=False, sort_keys=True))
@@ -523,9 +536,16 @@ class RecorderNode(Node):
         if self._writer is None:
             return
         try:
-            extra = json.loads(deserialize_message(raw, String).data).get('extra') or {}
+            doc = load_json_text(deserialize_message(raw, String).data, 'stream description')
+            if not isinstance(doc, dict):
+                raise ValueError(f'a stream description is a JSON object, got '
+                                 f'{type(doc).__name__}')
+            extra = doc.get('extra') or {}
+            if not isinstance(extra, dict):
+                raise ValueError(f'extra must be an object, got {type(extra).__name__}')
             faults = faults_from_extra(extra)
-        except (ValueError, TypeError, AttributeError):
+        except (ValueError, TypeError, AttributeError) as exc:
+            self._bad_description(topic, exc)
             return
         new = False
         for fault in faults:
@@ -612,6 +632,7 @@ class RecorderNode(Node):
         status = {'state': self._state, 'output': str(self._output or ''),
                   'error': self._error, 'topics': sorted(self._recorded),
                   'device_faults': len(self._faults),
+                  'bad_descriptions': self._bad_descriptions,
                   'unrecordable': dict(self._unrecordable)}
         if self._writer is not None:
             stats = self._writer.stats()
@@ -647,6 +668,13 @@ class RecorderNode(Node):
                 values[f'bytes_B {topic}'] = stats.bytes[topic]
             if stats.dropped:
                 level, message = DiagnosticStatus.WARN, f'{stats.dropped} messages dropped'
+        values['bad_descriptions'] = self._bad_descriptions
+        if self._bad_descriptions:
+            values['bad_description_error'] = self._bad_description_error
+            if level == DiagnosticStatus.OK:
+                level = DiagnosticStatus.WARN
+                message = (f'{self._bad_descriptions} malformed description(s) recorded as '
+                           'received, not interpreted')
         if self._faults:
             values['device_faults'] = len(self._faults)
             level, message = DiagnosticStatus.ERROR, (

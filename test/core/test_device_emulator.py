@@ -181,6 +181,9 @@ def test_blocks_returned_under_faults_equal_the_emulator_samples(emulators, back
     assert backend.health()['gaps'] >= 1
 
 
+SESSION = 0x1234_5678_9ABC_DEF0
+
+
 class FakeDevice:
     """A plain socket that answers requests like a device and sends hand-made datagrams."""
 
@@ -204,13 +207,17 @@ class FakeDevice:
             msg = proto.decode_message(data)
             self.host = addr
             body = b''
-            if msg.type == proto.START:
+            session = msg.session
+            if msg.type == proto.CONFIGURE:
+                (nonce,) = proto.CONFIGURE_NONCE.unpack_from(msg.body)
+                body, session = proto.CONFIGURE_RESPONSE.pack(nonce, SESSION), SESSION
+            elif msg.type == proto.START:
                 body = proto.START_RESPONSE.pack(1, 42)
             elif msg.type == proto.HEARTBEAT:
                 body = proto.encode_heartbeat_reply(proto.HeartbeatReply(
                     0, 0, 1, 42, proto.STATE_RUNNING, False, 0, 0))
             self.sock.sendto(proto.encode_message(proto.Message(
-                msg.type, msg.request_id, proto.KIND_RESPONSE, proto.OK, body)), addr)
+                msg.type, msg.request_id, proto.KIND_RESPONSE, proto.OK, body, session)), addr)
 
     def close(self):
         self.stop.set()
@@ -228,8 +235,10 @@ def test_corrupt_truncated_foreign_and_mismatched_datagrams_never_crash_the_host
         scale, offset = input_scaling(config)
         codes = to_codes(np.full((len(INPUTS), BLOCK), 0.5), scale, offset)
 
-        def frame(seq, epoch=1, samples=codes, stream=proto.STREAM_MEASUREMENT):
-            return proto.encode_frame(proto.Frame(stream, seq, epoch, seq * BLOCK, samples))
+        def frame(seq, epoch=1, samples=codes, stream=proto.STREAM_MEASUREMENT,
+                  session=SESSION):
+            return proto.encode_frame(proto.Frame(stream, seq, epoch, seq * BLOCK, samples,
+                                                  session))
 
         good = frame(0)
         bad_crc = bytearray(good)
@@ -240,6 +249,13 @@ def test_corrupt_truncated_foreign_and_mismatched_datagrams_never_crash_the_host
         fake.sock.sendto(frame(0, samples=codes[:2]), fake.host)   # rejected: channels
         fake.sock.sendto(frame(0, stream=proto.STREAM_SETPOINT), fake.host)   # rejected
         fake.sock.sendto(frame(0, epoch=7), fake.host)             # stale epoch
+        fake.sock.sendto(frame(0, session=SESSION + 1), fake.host)  # another session
+        fake.sock.sendto(frame(0, session=0), fake.host)           # no session
+        # Responses nobody asked for: an unknown request id, a request sent to the host.
+        fake.sock.sendto(proto.encode_message(proto.Message(
+            proto.STOP, 9999, proto.KIND_RESPONSE, proto.OK, b'', SESSION)), fake.host)
+        fake.sock.sendto(proto.encode_message(proto.Message(
+            proto.STOP, 9998, proto.KIND_REQUEST, proto.OK, b'', SESSION)), fake.host)
         fake.sock.sendto(good, fake.host)
         intruder = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
@@ -255,6 +271,7 @@ def test_corrupt_truncated_foreign_and_mismatched_datagrams_never_crash_the_host
         health = backend.health()
         assert (health['corrupt'], health['rejected'], health['stale'], health['foreign']) == \
             (6, 2, 1, 2)
+        assert health['wrong_session'] == 2 and health['unsolicited'] == 2
         assert health['frames_received'] == 2 and health['duplicates'] == 0
     finally:
         fake.close()
@@ -268,6 +285,7 @@ class RawClient:
         self.sock.bind((LOCAL, 0))
         self.device = (LOCAL, port)
         self.rid = 0
+        self.session = 0
         self.frames = []
 
     def _receive(self, timeout_s):
@@ -280,17 +298,31 @@ class RawClient:
             return None
         return proto.decode_message(data)
 
-    def request(self, mtype, body=b'', timeout_s=2.0):
+    def send(self, mtype, body=b'', session=None):
         self.rid += 1
-        self.sock.sendto(proto.encode_message(proto.Message(mtype, self.rid, body=body)),
-                         self.device)
+        session = self.session if session is None else session
+        self.sock.sendto(proto.encode_message(proto.Message(mtype, self.rid, body=body,
+                                                            session=session)), self.device)
+        return self.rid
+
+    def answer(self, rid, timeout_s=2.0):
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             msg = self._receive(deadline - time.monotonic())
-            if msg is not None and msg.request_id == self.rid:
-                assert msg.status == proto.OK, msg.error_text()
+            if msg is not None and msg.request_id == rid:
                 return msg
-        raise AssertionError(f'no response to {mtype}')
+        raise AssertionError(f'no response to request {rid}')
+
+    def request(self, mtype, body=b'', timeout_s=2.0):
+        msg = self.answer(self.send(mtype, body), timeout_s)
+        assert msg.status == proto.OK, msg.error_text()
+        return msg
+
+    def configure(self, config):
+        msg = self.request(proto.CONFIGURE, proto.encode_configure_request(config, 77))
+        nonce, self.session = proto.decode_configure_response(msg.body)
+        assert nonce == 77 and msg.session == self.session != 0
+        return msg
 
     def pump(self, duration_s):
         end = time.monotonic() + duration_s
@@ -307,7 +339,7 @@ def test_device_watchdog_drives_outputs_safe_within_one_block_when_heartbeats_st
     try:
         timeout_s = 0.15
         config = _config(watchdog_timeout_s=timeout_s, safe_V=(0.25, 0.0))
-        client.request(proto.CONFIGURE, proto.encode_configure(config))
+        client.configure(config)
         client.request(proto.FUNCGEN, proto.encode_funcgen(
             [GeneratorSpec('constant', offset_V=1.0), GeneratorSpec()]))
         client.request(proto.START)
@@ -458,8 +490,8 @@ def test_a_retried_request_is_answered_again_but_not_executed_twice(emulators):
     emu = emulators(seed=12)
     client = RawClient(emu.port)
     try:
-        client.request(proto.CONFIGURE, proto.encode_configure(_config()))
-        start = proto.encode_message(proto.Message(proto.START, 500))
+        client.configure(_config())
+        start = proto.encode_message(proto.Message(proto.START, 500, session=client.session))
         replies = []
         for _ in range(2):
             client.sock.sendto(start, client.device)
@@ -474,7 +506,8 @@ def test_a_retried_request_is_answered_again_but_not_executed_twice(emulators):
             proto.HEARTBEAT, proto.HEARTBEAT_REQUEST.pack(0)).body)
         assert reply.epoch == 1 and reply.state == proto.STATE_RUNNING
         refused = proto.decode_message(_exchange(client, proto.Message(proto.FUNCGEN, 501, body=(
-            proto.encode_funcgen([GeneratorSpec('sine', 1.0, 1e6), GeneratorSpec()])))))
+            proto.encode_funcgen([GeneratorSpec('sine', 1.0, 1e6), GeneratorSpec()])),
+            session=client.session)))
         assert refused.status == proto.BAD_REQUEST and 'Nyquist' in refused.error_text()
     finally:
         client.close()

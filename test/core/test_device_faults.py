@@ -62,6 +62,34 @@ def test_underruns_grow_one_fault_and_silence_or_reconnects_mean_a_lost_device()
     again.reset({'reconnects': 2})
     assert again.observe({'reconnects': 2, 'device_silent_ms': 900}, 1, 1, 1.0) == []
     assert [f.kind for f in again.observe({'reconnects': 3}, 1, 1, 1.0)] == ['device_lost']
+    # The back-end's own verdict (a silence it proved), or a session the device dropped.
+    for key in ('device_losses', 'sessions_lost'):
+        monitor = FaultMonitor()
+        monitor.reset({key: 4})
+        assert monitor.observe({key: 4}, 1, 1, 1.0) == []
+        (fault,) = monitor.observe({key: 5}, 1, 1, 1.0)
+        assert fault.kind == 'device_lost'
+        assert ('session' in fault.message) == (key == 'sessions_lost')
+
+
+def test_setpoint_gaps_and_refused_frames_are_faults_at_the_devices_record():
+    monitor = FaultMonitor()
+    monitor.reset({'device_gap_filled_samples': 7, 'device_setpoint_frames_rejected': 1},
+                  epoch=4)
+    clean = {'device_gap_filled_samples': 7, 'device_setpoint_frames_rejected': 1,
+             'device_first_gap_index': -1, 'device_first_rejected_index': -1}
+    assert monitor.observe(clean, 9000, 8000, 1.0) == []
+    (gap,) = monitor.observe(dict(clean, device_gap_filled_samples=507,
+                                  device_first_gap_index=4321), 9000, 8000, 1.0)
+    assert (gap.kind, gap.device_index, gap.exact, gap.epoch) == (
+        'device_setpoint_gap', 4321, True, 4)
+    assert '500 setpoint samples' in gap.message
+    (refused,) = monitor.observe(dict(clean, device_setpoint_frames_rejected=3,
+                                      device_first_rejected_index=-1), 9500, 8000, 1.0)
+    assert (refused.kind, refused.device_index, refused.exact) == (
+        'device_setpoint_rejected', 9500, False)
+    # Offset 1000, 10000 experiment samples: the gap from device sample 4321 on.
+    assert 'experiment samples 3321 to 9999 not applied' in describe([gap], 1000, 10000)
 
 
 def test_faults_round_trip_through_a_description_and_fall_inside_or_outside():
@@ -83,8 +111,9 @@ def test_faults_round_trip_through_a_description_and_fall_inside_or_outside():
     assert 'device sample 700 of epoch 1' in describe(faults[:1])
 
 
-def _request(sock, device, mtype, rid, body=b''):
-    sock.sendto(proto.encode_message(proto.Message(mtype, rid, body=body)), device)
+def _request(sock, device, mtype, rid, body=b'', session=0):
+    sock.sendto(proto.encode_message(proto.Message(mtype, rid, body=body, session=session)),
+                device)
     deadline = time.monotonic() + 5.0
     while time.monotonic() < deadline:
         data, _ = sock.recvfrom(65536)
@@ -107,13 +136,16 @@ def test_emulator_reports_its_trip_record_in_the_heartbeat():
     sock.settimeout(1.0)
     device = ('127.0.0.1', port)
     try:
-        _request(sock, device, proto.CONFIGURE, 1, proto.encode_configure(config, 0))
-        _request(sock, device, proto.START, 2)
+        _, session = proto.decode_configure_response(_request(
+            sock, device, proto.CONFIGURE, 1, proto.encode_configure_request(config, 5, 0)))
+        _request(sock, device, proto.START, 2, session=session)
         beat = proto.HEARTBEAT_REQUEST.pack(0)
-        reply = proto.decode_heartbeat_reply(_request(sock, device, proto.HEARTBEAT, 3, beat))
+        reply = proto.decode_heartbeat_reply(_request(sock, device, proto.HEARTBEAT, 3, beat,
+                                                      session))
         assert not reply.watchdog_tripped and reply.watchdog_trip_index is None
         time.sleep(0.8)                             # quiet for longer than 0.3 s
-        reply = proto.decode_heartbeat_reply(_request(sock, device, proto.HEARTBEAT, 4, beat))
+        reply = proto.decode_heartbeat_reply(_request(sock, device, proto.HEARTBEAT, 4, beat,
+                                                      session))
         assert reply.watchdog_tripped
         trip = reply.watchdog_trip_index
         assert trip == emulator.device.watchdog_trip_index

@@ -117,13 +117,26 @@ def test_streamed_setpoints_are_applied_sample_exactly_with_underruns_counted(ba
 
 def test_outputs_are_clamped_to_their_limits_and_counted(backend):
     _started(backend, limits_V=(-1.0, 1.0))
-    backend.set_function_generator([GeneratorSpec('constant', offset_V=3.0),
-                                    GeneratorSpec('constant', offset_V=-0.5)])
+    first = backend.device.index
+    n = backend.device.config.block_size
+    backend.write_setpoints(first, np.vstack([np.full(n, 3.0), np.full(n, -0.5)]))
     before = backend.health()['device_clamped_samples']
     block = backend.read_block()
     assert np.all(block.samples[COIL] == _dac(1.0))
     assert np.all(block.samples[LOAD] == _dac(-0.5))
-    assert backend.health()['device_clamped_samples'] - before == 400
+    assert backend.health()['device_clamped_samples'] - before == n
+
+
+@pytest.mark.parametrize('spec', [GeneratorSpec('constant', offset_V=3.0),
+                                  GeneratorSpec('sine', 0.6, 10.0, offset_V=0.5),
+                                  GeneratorSpec('prbs', 0.3, gain=4.0, prbs_order=5)])
+def test_a_generator_beyond_the_output_limits_is_refused_not_clamped(backend, spec):
+    _started(backend, limits_V=(-1.0, 1.0))
+    with pytest.raises(DeviceConfigError, match=r'coil_V.*beyond the output limits \[-1, 1\]'):
+        backend.set_function_generator([spec, GeneratorSpec()])
+    # Within the limits (to the volt) it is taken.
+    backend.set_function_generator([GeneratorSpec('sine', 0.5, 10.0, offset_V=0.5),
+                                    GeneratorSpec()])
 
 
 def test_watchdog_trip_drives_outputs_to_the_safe_value_from_its_sample(backend):

@@ -175,9 +175,9 @@ def test_faults_are_reported_and_no_wrong_sample_is_published(executor, ros_cont
         # from a foreign address, a truncated frame and a frame of the wrong channel count
         # from the device's own address: dropped and counted, the node keeps running.
         good = proto.encode_frame(proto.Frame(proto.STREAM_MEASUREMENT, 7, 1, 700,
-                                              np.zeros((4, 100), dtype=np.int16)))
+                                              np.zeros((4, 100), dtype=np.int16), emu.session))
         wrong = proto.encode_frame(proto.Frame(proto.STREAM_MEASUREMENT, 7, 1, 700,
-                                               np.zeros((3, 100), dtype=np.int16)))
+                                               np.zeros((3, 100), dtype=np.int16), emu.session))
         target = bridge._backend.local_address
         emu._sock.sendto(good[:60], target)
         emu._sock.sendto(wrong, target)
@@ -337,7 +337,18 @@ def test_stop_and_start_services_restart_the_stream_in_a_new_epoch(
     probe = Probe(ros_context)
     setup_nodes(executor, bridge, probe.node)
     assert ros_harness.spin_until(executor, lambda: len(probe.blocks) >= 2, TIMEOUT_S)
-    assert probe.call(executor, 'stop').success
+    statuses = []
+    probe.node.create_subscription(String, 'daq_bridge/status',
+                                   lambda m: statuses.append(json.loads(m.data)), LATCHED_QOS)
+    assert ros_harness.spin_until(executor, lambda: statuses and
+                                  statuses[-1]['state'] == 'running', TIMEOUT_S)
+    # The services answer at once; the device's answer is waited for in the worker thread
+    # and ~/status says how it ended.
+    answer = probe.call(executor, 'stop')
+    assert answer.success and 'in the background' in answer.message
+    assert ros_harness.spin_until(executor, lambda: statuses[-1]['state'] == 'stopped',
+                                  TIMEOUT_S)
+    assert 'stopping' in [s['state'] for s in statuses]
     assert bridge.diagnostic_values()['state'] == 'stopped'
     epoch = probe.blocks[-1][1]
     assert probe.call(executor, 'start').success
@@ -583,11 +594,12 @@ def test_autostart_waits_for_a_device_that_is_not_there_yet(executor, ros_contex
     probe_sock.close()
     bridge = DaqBridgeNode(context=ros_context, parameter_overrides=bridge_params(
         backend='udp', **{'udp.device_port': port, 'udp.request_timeout_s': 0.05}))
+    # The first attempt runs in the worker thread: the node is up at once.
+    assert bridge.diagnostic_values()['state'] in ('starting', 'error')
     probe = Probe(ros_context)
     setup_nodes(executor, bridge, probe.node)
-    assert bridge.diagnostic_values()['state'] == 'error'
-    assert 'start failed' in bridge.diagnostic_values()['last_error']
     assert ros_harness.spin_until(executor, lambda: probe.diag('state') == 'error', TIMEOUT_S)
+    assert 'start failed' in bridge.diagnostic_values()['last_error']
     with DeviceEmulator(port=port, record=True, seed=8) as emu:
         assert ros_harness.spin_until(executor, lambda: len(probe.blocks) >= 2, TIMEOUT_S)
         record = emulator_record(emu)
@@ -623,3 +635,82 @@ def test_an_invalid_min_subscribers_is_an_error_that_says_why(executor, ros_cont
     values = bridge.diagnostic_values()
     assert values['state'] == 'error'
     assert 'min_subscribers' in values['error'], values
+
+
+def _readme_block(after: str):
+    """The shell lines of the first ``bash`` block after a sentence of the README."""
+    from pathlib import Path
+    text = (Path(__file__).resolve().parents[2] / 'README.md').read_text()
+    start = text.index('```bash', text.index(after)) + len('```bash')
+    block = text[start:text.index('```', start)].replace('\\\n', '')
+    return [line.strip() for line in block.splitlines() if line.strip()]
+
+
+def test_the_readme_key_commands_run_as_typed(executor, ros_context, processes, tmp_path):
+    import shlex
+    import subprocess
+    from pathlib import Path
+    repo = Path(__file__).resolve().parents[2]
+    keygen, emulator_line, bridge_line = _readme_block('authenticate every datagram')
+    (tmp_path / 'config').symlink_to(repo / 'config')
+    subprocess.run(['bash', '-c', keygen], cwd=tmp_path, check=True, timeout=60,
+                   env=ros_harness.child_environment())
+    assert len(bytes.fromhex((tmp_path / 'device.key').read_text())) == 32
+    assert (tmp_path / 'device.key').stat().st_mode & 0o777 == 0o600
+    emulator = processes.start(shlex.split(emulator_line), cwd=tmp_path)
+    argv = shlex.split(bridge_line)
+    assert argv[:4] == ['ros2', 'run', 'emfc_ros', 'daq_bridge'], argv
+    bridge = processes.start(ros_harness.node_executable('daq_bridge') + argv[4:], cwd=tmp_path)
+    node = rclpy.create_node('key_probe', namespace='/emfc', context=ros_context)
+    blocks, diagnostics = [], []
+    node.create_subscription(Float64MultiArray, 'measurements', blocks.append, BLOCK_QOS)
+    node.create_subscription(DiagnosticArray, '/diagnostics', diagnostics.append, 10)
+    executor.add_node(node)
+
+    def authenticated():
+        for msg in diagnostics:
+            for status in msg.status:
+                values = {kv.key: kv.value for kv in status.values}
+                if status.name.startswith('daq_bridge') and values.get('authenticated') == '1' \
+                        and int(values.get('frames_received', 0)) > 0:
+                    return True
+        return False
+
+    # A fresh install compiles the simulator kernel at the emulator's first start.
+    assert ros_harness.spin_until(executor, lambda: len(blocks) >= 3 and authenticated(),
+                                  180.0), emulator.output() + bridge.output()
+    assert bridge.stop() in (0, -2)
+    assert emulator.stop() == 0
+    out = emulator.output()
+    assert 'authentication: HMAC-SHA256 key device.key' in out, out
+    assert 'refused datagrams: none' in out, out
+
+
+def test_the_executor_keeps_running_while_the_device_does_not_answer(executor, ros_context):
+    # A port nobody serves: every request to it waits its timeouts and retries (5 x 0.5 s).
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(('127.0.0.1', 0))
+    port = sock.getsockname()[1]
+    sock.close()
+    bridge = DaqBridgeNode(context=ros_context, parameter_overrides=bridge_params(
+        backend='udp', autostart=False, **{'udp.device_port': port,
+                                           'udp.request_timeout_s': 0.5}))
+    probe = Probe(ros_context)
+    setup_nodes(executor, bridge, probe.node)
+    answer = probe.call(executor, 'start')
+    # The service answered while the start still waits for the device in the worker...
+    assert answer.success and 'in the background' in answer.message
+    assert bridge.status_values()['device_busy'], bridge.status_values()
+    assert bridge.status_values()['state'] == 'starting'
+    # ...and the executor goes on meanwhile: diagnostics keep coming, services answer.
+    seen = len(probe.diagnostics)
+    assert ros_harness.spin_until(
+        executor, lambda: len(probe.diagnostics) >= seen + 3
+        or not bridge.status_values()['device_busy'], TIMEOUT_S)
+    assert bridge.status_values()['device_busy'], 'the start ended before 3 diagnostics'
+    assert probe.call(executor, 'emergency_stop').success
+    assert probe.diag('state') == 'starting'
+    # In the end the start fails, with the reason, and the node stays up.
+    assert ros_harness.spin_until(executor, lambda: bridge.status_values()['state'] == 'error',
+                                  TIMEOUT_S)
+    assert 'no response' in bridge.status_values()['last_error']

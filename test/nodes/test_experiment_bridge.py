@@ -270,3 +270,36 @@ def test_unknown_bridge_parameter_is_refused_with_its_key(tmp_path):
     assert 'run.bridge.parameters.udp.device_prot' in result.stderr
     assert 'Traceback' not in result.stderr
     assert not (tmp_path / 'o').exists()
+
+
+@pytest.mark.slow
+def test_a_keyed_bridge_run_authenticates_the_emulator_the_runner_starts(tmp_path):
+    key = tmp_path / 'device.key'
+    key.write_text(os.urandom(32).hex())
+    key.chmod(0o600)
+    doc = yaml.safe_load(config_file('experiment_bridge_emulator.yaml').read_text())
+    run = doc['run']
+    run['experiment_files'] = [str(config_file('experiment_bridge_emulator.yaml'))]
+    run['bridge']['parameters_file'] = str(config_file('daq_bridge_udp.yaml'))
+    run['bridge']['balance_file'] = str(config_file('balance_default.yaml'))
+    run['bridge']['parameters']['udp.key_file'] = str(key)
+    run['identification'] = {'enabled': False}
+    out = tmp_path / 'out'
+    result = _run([str(_write_plan(tmp_path, 'plan.yaml', doc)), '-o', str(out)],
+                  cwd=tmp_path)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    # Every datagram was authenticated: the bridge said so, and refused nothing.
+    diags = [m for _, m in _mcap_messages(out / 'bag', '/diagnostics')]
+    values = [{kv.key: kv.value for kv in s.values} for m in diags for s in m.status
+              if s.name.startswith('daq_bridge')]
+    assert values and values[-1]['authenticated'] == '1'
+    assert int(values[-1]['frames_received']) > 60
+    refused = ('unauthenticated', 'replayed', 'foreign', 'wrong_session')
+    assert all(values[-1][k] == '0' for k in refused), values[-1]
+    # A key file the others can read is refused before anything starts, with the reason.
+    key.chmod(0o644)
+    result = _run([str(_write_plan(tmp_path, 'plan.yaml', doc)), '-o', str(tmp_path / 'o2')],
+                  cwd=tmp_path, timeout_s=120)
+    assert result.returncode != 0
+    assert 'chmod 600' in result.stdout + result.stderr
+    assert 'Traceback' not in result.stderr

@@ -207,6 +207,55 @@ class DeviceConfig:
         return np.array([c.safe_V for c in self.outputs])
 
 
+def generator_range_V(spec: GeneratorSpec) -> Tuple[float, float]:
+    """
+    Lowest and highest value a generator spec outputs (before clamping).
+
+    Parameters
+    ----------
+    spec : GeneratorSpec
+        The spec (``'off'`` and ``'constant'`` output ``offset_V`` only).
+
+    Returns
+    -------
+    (float, float)
+        ``offset_V -/+ |gain * amplitude_V|`` [V].
+    """
+    swing = 0.0 if spec.waveform in ('off', 'constant') else abs(spec.gain * spec.amplitude_V)
+    return spec.offset_V - swing, spec.offset_V + swing
+
+
+def check_generator_range(specs: Sequence[GeneratorSpec], config: 'DeviceConfig') -> None:
+    """
+    Refuse generator specs whose output would leave their channel's limits.
+
+    The device would clamp such an output (what was asked for would not be applied), and a
+    value beyond the limits is almost always a typing error: the bound is each output's
+    ``[min_V, max_V]`` (inside the DAC range), not a fixed number of volts.
+
+    Parameters
+    ----------
+    specs : sequence of GeneratorSpec
+        One per output channel.
+    config : DeviceConfig
+        The configuration with the outputs' limits.
+
+    Raises
+    ------
+    DeviceConfigError
+        Naming the channel, the generator's range and the limits.
+    """
+    for spec, out in zip(specs, config.outputs):
+        if not spec.active:
+            continue
+        low, high = generator_range_V(spec)
+        if low < out.min_V - 1e-9 or high > out.max_V + 1e-9:
+            raise DeviceConfigError(
+                f'function generator of {out.name}: its output spans [{low:g}, {high:g}] V '
+                f'(offset_V -/+ |gain * amplitude_V|), beyond the output limits '
+                f'[{out.min_V:g}, {out.max_V:g}] V')
+
+
 def to_codes(values: np.ndarray, scale: np.ndarray, offset: np.ndarray) -> np.ndarray:
     """
     Convert SI values to raw int16 converter codes (nearest code, saturating).

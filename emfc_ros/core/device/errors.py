@@ -34,3 +34,21 @@ class DeviceRefusedError(DeviceError):
     def __init__(self, status: int, message: str) -> None:
         self.status = status
         super().__init__(f'device refused the request (status {status}): {message}')
+
+
+class AuthenticationError(ProtocolError):
+    """
+    A datagram's authentication does not match the receiver's key.
+
+    Missing tag while a key is configured, a tag without a key, or a wrong tag. The header
+    fields (when the header was intact) are kept so that a device can answer the request.
+
+    Attributes
+    ----------
+    header : tuple or None
+        The header fields after magic and version, or None.
+    """
+
+    def __init__(self, message: str, header: tuple = None) -> None:
+        super().__init__(message)
+        self.header = header

@@ -17,9 +17,18 @@ Kinds (:data:`KINDS`):
     The device ran out of setpoints while streaming (the host wrote them too late): those
     samples were output at the safe values. The device counts them; where they lie is the
     host's estimate (the latest possible position).
+``device_setpoint_gap``
+    The device filled setpoint samples with the safe values because the setpoint stream had
+    a gap (frames lost on the way, or the host skipped ahead after falling behind). Where
+    the first gap of the epoch began is the device's record (exact).
+``device_setpoint_rejected``
+    The device refused setpoint frames of the current epoch (malformed for its
+    configuration, or too far ahead): their samples were output at the safe values. The
+    first refused frame's index is the device's record (exact).
 ``device_lost``
-    No datagram from the device for longer than the device timeout, or the back-end had to
-    reconnect (the stream restarted in a new epoch).
+    No valid datagram from the device for longer than the device timeout, the device no
+    longer knows the host's session (another host took it, or it restarted), or the
+    back-end had to reconnect (the stream restarted in a new epoch).
 ``excitation_watchdog``
     The bridge's excitation watchdog drove the outputs safe while excitation samples were
     still queued, or excitation arrived again after such a trip (the samples between were
@@ -28,6 +37,9 @@ Kinds (:data:`KINDS`):
     ``~/emergency_stop`` was called.
 ``safe_outputs_unconfirmed``
     The device did not confirm the request that drives the outputs safe.
+``generator_unconfirmed``
+    The device did not confirm a change of its function generator made while running (or
+    the one restoring it after an emergency stop): it may still output the old one.
 """
 
 from __future__ import annotations
@@ -35,8 +47,13 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
-KINDS = ('device_watchdog', 'device_underrun', 'device_lost', 'excitation_watchdog',
-         'emergency_stop', 'safe_outputs_unconfirmed')
+KINDS = ('device_watchdog', 'device_underrun', 'device_setpoint_gap',
+         'device_setpoint_rejected', 'device_lost', 'excitation_watchdog', 'emergency_stop',
+         'safe_outputs_unconfirmed', 'generator_unconfirmed')
+#: Cumulative health counters compared with their values at the start of a run.
+BASELINE_KEYS = ('device_underrun_samples', 'device_watchdog_trips', 'reconnects',
+                 'device_gap_filled_samples', 'device_setpoint_frames_rejected',
+                 'device_losses', 'sessions_lost')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -249,8 +266,7 @@ class FaultMonitor:
         """
         self._faults = []
         health = health or {}
-        self._base = {k: _int(health.get(k)) for k in ('device_underrun_samples',
-                                                       'device_watchdog_trips', 'reconnects')}
+        self._base = {k: _int(health.get(k)) for k in BASELINE_KEYS}
         self._epoch = int(epoch or 0)
 
     def add(self, kind: str, device_index: Optional[int], samples: Optional[int],
@@ -290,7 +306,10 @@ class FaultMonitor:
         health : mapping
             The back-end's health (``device_watchdog_tripped``,
             ``device_watchdog_trip_index``, ``device_underrun_samples``,
-            ``device_silent_ms``, ``reconnects``; missing keys mean nothing to see).
+            ``device_gap_filled_samples``, ``device_first_gap_index``,
+            ``device_setpoint_frames_rejected``, ``device_first_rejected_index``,
+            ``device_silent_ms``, ``device_losses``, ``sessions_lost``, ``reconnects``;
+            missing keys mean nothing to see).
         device_index_now : int
             The host's estimate of the device's sample index now.
         received_end : int
@@ -325,13 +344,41 @@ class FaultMonitor:
                     new.append(fault)
                 else:
                     self._faults[self._faults.index(old)] = fault
+        for kind, key, index_key, what in (
+                ('device_setpoint_gap', 'device_gap_filled_samples', 'device_first_gap_index',
+                 'setpoint samples filled with the safe values for gaps in the setpoint '
+                 'stream (frames lost, or written out of order after the host fell behind)'),
+                ('device_setpoint_rejected', 'device_setpoint_frames_rejected',
+                 'device_first_rejected_index',
+                 'setpoint frames refused (malformed for the configuration): their samples '
+                 'were output at the safe values')):
+            count = _int(health.get(key)) - self._base.get(key, 0)
+            if count > 0 and not self.has(kind):
+                first = _int(health.get(index_key), -1)
+                exact = first >= 0
+                unit = 'samples' if kind == 'device_setpoint_gap' else 'frames'
+                new.append(self.add(kind, first if exact else device_index_now, None,
+                                    f'the device reports {count} {what} (first at device '
+                                    f'sample {first if exact else "unknown"}; {unit} since '
+                                    'the start of the run)', exact))
         silent_s = _int(health.get('device_silent_ms')) * 1e-3
         reconnects = _int(health.get('reconnects')) - self._base.get('reconnects', 0)
-        if (silent_s > device_timeout_s or reconnects > 0) and not self.has('device_lost'):
-            what = (f'no datagram from the device for {silent_s:.2f} s (timeout '
-                    f'{device_timeout_s:g} s)' if silent_s > device_timeout_s
-                    else f'the device was lost and reconnected ({reconnects} time(s)): its '
-                    'stream restarted in a new epoch')
+        losses = _int(health.get('device_losses')) - self._base.get('device_losses', 0)
+        disowned = _int(health.get('sessions_lost')) - self._base.get('sessions_lost', 0)
+        if (silent_s > device_timeout_s or reconnects > 0 or losses > 0 or disowned > 0) \
+                and not self.has('device_lost'):
+            if disowned > 0:
+                what = ('the device no longer knows the session of this host (another host '
+                        'took it after this one fell silent, or it restarted)')
+            elif silent_s > device_timeout_s:
+                what = (f'no valid datagram from the device for {silent_s:.2f} s (timeout '
+                        f'{device_timeout_s:g} s)')
+            elif losses > 0:
+                what = (f'no valid datagram from the device for longer than its timeout '
+                        f'({device_timeout_s:g} s)')
+            else:
+                what = (f'the device was lost and reconnected ({reconnects} time(s)): its '
+                        'stream restarted in a new epoch')
             new.append(self.add('device_lost', received_end, None, what))
         return new
 

@@ -16,10 +16,11 @@ from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 import numpy as np
 
 from emfc_ros.core.blocks import Block, Continuity
-from emfc_ros.core.device.backend import (DeviceConfig, from_codes, input_scaling,
-                                          MAX_CHANNELS, to_codes)
+from emfc_ros.core.device.backend import (check_generator_range, DeviceConfig, from_codes,
+                                          input_scaling, MAX_CHANNELS, to_codes)
 from emfc_ros.core.device.errors import DeviceConfigError, DeviceError
 from emfc_ros.core.device.function_generator import FunctionGenerator, GeneratorSpec
+from emfc_ros.core.errors import BlockError
 from emfc_ros.core.excitation_queue import ExcitationQueue
 
 IDLE = 'idle'
@@ -29,7 +30,8 @@ RUNNING = 'running'
 N_OUTPUTS = 2
 
 ENGINE_COUNTERS = ('samples_sent', 'setpoint_frames_received', 'setpoint_late_samples',
-                   'underrun_samples', 'clamped_samples', 'watchdog_trips')
+                   'underrun_samples', 'clamped_samples', 'watchdog_trips',
+                   'setpoint_frames_rejected')
 
 
 def load_parameters(path: Optional[str] = None) -> Any:
@@ -98,7 +100,10 @@ class SimulatedDevice:
         self.generator: Optional[FunctionGenerator] = None
         self.queue: Optional[ExcitationQueue] = None
         self.watchdog_trip_index: Optional[int] = None
+        #: First sample of this epoch of a refused setpoint frame (None: none refused).
+        self.first_rejected_index: Optional[int] = None
         self.counters: Dict[str, int] = dict.fromkeys(ENGINE_COUNTERS, 0)
+        self._gap_filled_before = 0             # gap-filled samples of earlier epochs
         self._rows: List[int] = []
         self._scale = np.ones(0)
         self._offset = np.zeros(0)
@@ -185,13 +190,15 @@ class SimulatedDevice:
         DeviceError
             If not configured.
         DeviceConfigError
-            If the count is wrong or a signal cannot be built.
+            If the count is wrong, a signal cannot be built or its output would leave the
+            channel's limits.
         """
         if self.config is None:
             raise DeviceError('function generator before configure')
         if len(specs) != len(self.config.outputs):
             raise DeviceConfigError(f'need {len(self.config.outputs)} generator specs, got '
                                     f'{len(specs)}')
+        check_generator_range(specs, self.config)
         self.generator = FunctionGenerator(specs, self.config.sample_rate_Hz)
 
     def start(self) -> int:
@@ -212,8 +219,11 @@ class SimulatedDevice:
             raise DeviceError('start before configure')
         self.epoch = (self.epoch + 1) % 2 ** 32
         self.index = 0
+        if self.queue is not None:
+            self._gap_filled_before += self.queue.gap_filled_samples
         self.queue = ExcitationQueue(self.config.safe_values_V)
         self.watchdog_trip_index = None
+        self.first_rejected_index = None
         self.state = RUNNING
         return self.epoch
 
@@ -250,11 +260,42 @@ class SimulatedDevice:
         samples = np.asarray(samples_V, dtype=np.float64)
         if samples.ndim != 2 or samples.shape[0] != len(self.config.outputs) or \
                 not np.all(np.isfinite(samples)) or first_sample_index < 0:
+            self.reject_setpoints(first_sample_index)
             raise DeviceConfigError(f'setpoints must be finite, shape ({len(self.config.outputs)},'
                                     f' n), first index >= 0; got shape {samples.shape}')
         self.counters['setpoint_frames_received'] += 1
-        return self.queue.push(Block(int(first_sample_index), self.config.sample_rate_Hz,
-                                     self.epoch, samples))
+        try:
+            return self.queue.push(Block(int(first_sample_index), self.config.sample_rate_Hz,
+                                         self.epoch, samples))
+        except BlockError as exc:       # e.g. a jump too far ahead: refused
+            self.reject_setpoints(first_sample_index)
+            raise DeviceConfigError(f'setpoints refused: {exc}') from None
+
+    def reject_setpoints(self, first_sample_index: Optional[int]) -> None:
+        """
+        Count a refused setpoint frame of the current epoch and record where it was.
+
+        Parameters
+        ----------
+        first_sample_index : int or None
+            Its first sample index, when known.
+        """
+        self.counters['setpoint_frames_rejected'] += 1
+        if self.first_rejected_index is None and isinstance(first_sample_index, int) and \
+                first_sample_index >= 0:
+            self.first_rejected_index = int(first_sample_index)
+
+    @property
+    def first_gap_index(self) -> Optional[int]:
+        """
+        First sample of this epoch that a gap in the setpoint stream left at the safe values.
+
+        Returns
+        -------
+        int or None
+            None when the stream had no gap.
+        """
+        return None if self.queue is None else self.queue.first_gap_index
 
     @property
     def watchdog_tripped(self) -> bool:
@@ -362,7 +403,7 @@ class SimulatedDevice:
 
     def all_counters(self) -> Dict[str, int]:
         """
-        Engine counters plus the setpoint queue's.
+        Engine counters plus the setpoint queue's (gap-filled samples since boot).
 
         Returns
         -------
@@ -370,11 +411,13 @@ class SimulatedDevice:
             Counter name to value.
         """
         out = dict(self.counters)
+        out['gap_filled_samples'] = self._gap_filled_before
         if self.queue is not None:
             qc = self.queue.counters()
             out.update({'setpoint_gaps': qc['gaps'], 'setpoint_duplicates': qc['duplicates'],
                         'setpoint_reordered': qc['reordered'],
-                        'gap_filled_samples': qc['gap_filled_samples']})
+                        'gap_filled_samples': self._gap_filled_before
+                        + qc['gap_filled_samples']})
         return out
 
 
@@ -490,9 +533,13 @@ class SimBackend:
                'missing_samples': 0, 'duplicates': 0, 'reordered': 0, 'corrupt': 0, 'late': 0,
                'heartbeat_misses': 0, 'reconnects': 0}
         out.update({f'device_{k}': v for k, v in self.device.all_counters().items()})
-        trip = self.device.watchdog_trip_index
+        dev = self.device
+        trip = dev.watchdog_trip_index
         out['device_watchdog_tripped'] = int(trip is not None)
         out['device_watchdog_trip_index'] = -1 if trip is None else int(trip)
+        for key, index in (('device_first_gap_index', dev.first_gap_index),
+                           ('device_first_rejected_index', dev.first_rejected_index)):
+            out[key] = -1 if index is None else int(index)
         return out
 
     def close(self) -> None:

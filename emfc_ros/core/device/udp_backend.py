@@ -3,22 +3,31 @@ Back-end ``'udp'``: a device on the network, spoken to with :mod:`~emfc_ros.core
 
 One UDP socket (bound to 127.0.0.1 by default) carries everything: control requests with
 request ids, timeouts and retries; heartbeats at ``heartbeat_period_s``; setpoint frames to
-the device; measurement frames and responses from it. Only datagrams from the configured
-device address are accepted; the rest are counted (``foreign``) and dropped.
+the device; measurement frames and responses from it. A datagram is accepted only when it
+comes from the configured device address, carries this host's session id (issued by the
+device at CONFIGURE) and, with a key, a valid HMAC tag and a fresh counter; everything else
+is counted (``foreign``, ``wrong_session``, ``unauthenticated``, ``replayed``, ``corrupt``,
+``unsolicited``, ``late_responses``) and dropped, and only accepted datagrams count as the
+device being alive.
 
 Two threads: the receiver decodes datagrams, answers waiting requests and feeds measurement
 frames through a :class:`ReorderBuffer` (by sequence number, a window of a few frames and a
 timeout) into the block queue that :meth:`UdpBackend.read_block` reads; the supervisor sends
-heartbeats, counts missed replies and reconnects: when the device has been silent for
-``device_timeout_s`` or its heartbeat replies show that it rebooted or stopped while it
-should run, it sends STOP, CONFIGURE, FUNCGEN and START again and counts a reconnect (the
-stream continues in a new epoch at index 0).
+heartbeats, counts missed replies and declares the device lost when it has been silent for
+``device_timeout_s`` (:meth:`UdpBackend.silence_s`: measured up to the receiver's last
+proof that nothing was waiting in the socket, so a stalled host is not taken for a dead
+device, and bounded by ``device_timeout_s + FLOOD_GRACE_S`` whatever the host does). A
+lost device, or heartbeat replies showing that it rebooted, stopped, or no longer knows our
+session, is reconfigured and restarted (STOP, CONFIGURE, FUNCGEN, START) and counts a
+reconnect (the stream continues in a new epoch at index 0).
 """
 
 from __future__ import annotations
 
 import collections
 import ipaddress
+from pathlib import Path
+import secrets
 import socket
 import struct
 import threading
@@ -29,22 +38,32 @@ import numpy as np
 
 from emfc_ros.core.blocks import Block
 from emfc_ros.core.device import protocol as proto
-from emfc_ros.core.device.backend import DeviceConfig, from_codes, input_scaling, to_codes
-from emfc_ros.core.device.errors import (DeviceConfigError, DeviceError, DeviceRefusedError,
-                                         DeviceTimeoutError, ProtocolError)
+from emfc_ros.core.device.auth import check_key, load_key_file, ReplayGuard, Signer
+from emfc_ros.core.device.backend import (check_generator_range, DeviceConfig, from_codes,
+                                          input_scaling, to_codes)
+from emfc_ros.core.device.errors import (AuthenticationError, DeviceConfigError, DeviceError,
+                                         DeviceRefusedError, DeviceTimeoutError, ProtocolError)
 from emfc_ros.core.device.function_generator import GeneratorSpec
 
-#: A supervisor that has not woken for this long means the host stalled [s] (it wakes every
-#: 50 ms at most).
+#: A thread that has not run for this long means the host stalled [s] (the supervisor wakes
+#: every 50 ms at most, the receiver's socket times out after 50 ms).
 HOST_STALL_S = 0.25
+#: When the receiver never finds its socket empty (a flood of datagrams), the device is
+#: declared lost after ``device_timeout_s`` plus this long without a valid datagram [s].
+FLOOD_GRACE_S = 1.0
 SEQ_MOD = 2 ** 32
 SEQ_HALF = 2 ** 31
 HOST_COUNTERS = ('frames_received', 'blocks_delivered', 'blocks_overflowed', 'gaps',
                  'missing_frames', 'missing_samples', 'duplicates', 'reordered', 'late',
                  'index_discontinuities', 'corrupt', 'rejected', 'stale', 'foreign',
-                 'heartbeats_sent', 'heartbeat_replies', 'heartbeat_misses', 'requests',
-                 'request_retries', 'request_timeouts', 'reconnects', 'setpoint_frames_sent',
+                 'wrong_session', 'unauthenticated', 'replayed', 'unsolicited',
+                 'late_responses', 'heartbeats_sent', 'heartbeat_replies', 'heartbeat_misses',
+                 'heartbeat_refusals', 'requests', 'request_retries', 'request_timeouts',
+                 'reconnects', 'device_losses', 'sessions_lost', 'setpoint_frames_sent',
                  'host_stalls')
+#: Counters of datagrams someone else sent (the bridge reports them as WARN).
+INTRUSION_COUNTERS = ('foreign', 'wrong_session', 'unauthenticated', 'replayed',
+                      'unsolicited')
 
 
 class ReorderBuffer:
@@ -201,9 +220,14 @@ def _address(value: Union[str, Tuple[str, int]]) -> Tuple[str, int]:
 
 
 class _Slot:
-    def __init__(self) -> None:
+    """A request waiting for its response."""
+
+    def __init__(self, message_type: int, session: int, nonce: int = 0) -> None:
         self.event = threading.Event()
         self.message: Optional[proto.Message] = None
+        self.type = message_type
+        self.session = session
+        self.nonce = nonce
 
 
 class UdpBackend:
@@ -223,7 +247,7 @@ class UdpBackend:
     retries : int
         Retries of a request after the first attempt.
     device_timeout_s : float
-        Silence (no frame, no reply) after which the device counts as lost [s].
+        Silence (no valid frame, no valid reply) after which the device counts as lost [s].
     reorder_window : int
         Sequence numbers the reorder buffer spans before it declares a gap.
     reorder_timeout_s : float
@@ -236,6 +260,11 @@ class UdpBackend:
         Reconfigure and restart a lost or rebooted device.
     clock : callable
         Monotonic clock [s].
+    key : bytes, optional
+        Pre-shared key: authenticate every datagram (HMAC-SHA256) and accept only
+        authenticated ones.
+    key_file : str or Path, optional
+        Read the key from this file (:func:`~emfc_ros.core.device.auth.load_key_file`).
     """
 
     name = 'udp'
@@ -246,7 +275,8 @@ class UdpBackend:
                  retries: int = 4, device_timeout_s: float = 0.5, reorder_window: int = 8,
                  reorder_timeout_s: float = 0.2, max_queued_blocks: int = 10000,
                  setpoint_format: str = 'float64', auto_reconnect: bool = True,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, key: Optional[bytes] = None,
+                 key_file: Optional[Union[str, Path]] = None) -> None:
         if setpoint_format not in ('float64', 'int16'):
             raise DeviceConfigError(f"setpoint_format must be 'float64' or 'int16', got "
                                     f'{setpoint_format!r}')
@@ -255,6 +285,12 @@ class UdpBackend:
                             ('device_timeout_s', device_timeout_s)):
             if not 0 < value <= 60:
                 raise DeviceConfigError(f'{name} must be in (0, 60] s, got {value!r}')
+        if key is not None and key_file:
+            raise DeviceConfigError('give key or key_file, not both')
+        if key_file:
+            key = load_key_file(key_file)
+        self.key = None if key is None else check_key(key, 'udp back-end key')
+        self._signer = None if self.key is None else Signer(self.key)
         self.device_address = _address(device_address)
         bind = _address(bind_address)
         self.heartbeat_period_s = float(heartbeat_period_s)
@@ -271,23 +307,34 @@ class UdpBackend:
         self.epoch: Optional[int] = None
         self.stream_epoch = 0
         self.boot_id: Optional[int] = None
+        self.session = 0
         self.last_heartbeat: Optional[proto.HeartbeatReply] = None
+        #: Why the device dropped our session (its refusal of a heartbeat), if it did.
+        self.lost_reason = ''
+        self._auth_hint = ''
+        self._guards: Dict[int, ReplayGuard] = {0: ReplayGuard()}
         self._scale = np.ones(0)
         self._offset = np.zeros(0)
         self._lock = threading.Lock()
         self._blocks_ready = threading.Condition(self._lock)
         self._blocks: Deque[Block] = collections.deque(maxlen=int(max_queued_blocks))
         self._pending: Dict[int, _Slot] = {}
-        self._heartbeats: Dict[int, float] = {}
+        self._answered: Deque[int] = collections.deque(maxlen=256)
+        self._heartbeats: Dict[int, Tuple[float, int]] = {}
+        self._heartbeats_missed: Deque[int] = collections.deque(maxlen=256)
         self._hb_valid_from = 0
         self._next_rid = 1
         self._setpoint_sequence = 0
         self._running = False
         self._need_recover = False
-        self._last_rx = self._clock()
-        # When the host itself stalls (its threads did not run), the silence it measures is
-        # its own: the device gets a fresh device_timeout_s from the end of the stall.
-        self._last_wake = self._awake_since = self._clock()
+        self._session_lost = False
+        self._lost = False
+        now = self._clock()
+        self._last_rx = now
+        # The receiver's latest proof that nothing was waiting in the socket: the start of a
+        # receive call that timed out without the host stalling.
+        self._drained_at = now
+        self._last_wake = self._awake_since = now
         self._closed = threading.Event()
         family = socket.AF_INET6 if ':' in bind[0] else socket.AF_INET
         self._sock = socket.socket(family, socket.SOCK_DGRAM)
@@ -310,9 +357,11 @@ class UdpBackend:
 
     def configure(self, config: DeviceConfig) -> None:
         """
-        Send STOP, then CONFIGURE (measurement frames come to this socket).
+        Take the device: CONFIGURE (a new session), after a STOP of our own earlier session.
 
-        The STOP ends a run that an earlier host session may have left going.
+        A device owned by another live session answers BUSY; the request is repeated until
+        that owner has been silent for its watchdog timeout (we wait at most this
+        configuration's ``watchdog_timeout_s`` plus a second).
 
         Parameters
         ----------
@@ -327,12 +376,29 @@ class UdpBackend:
         """
         if self._running:
             raise DeviceError('configure while running: stop first')
-        self.request(proto.STOP, b'')
-        self.request(proto.CONFIGURE, proto.encode_configure(config, 0))
+        if self.session:
+            try:
+                self.request(proto.STOP, b'')
+            except DeviceRefusedError:
+                pass                # our session is gone: the CONFIGURE below takes a new one
+        deadline = self._clock() + min(10.0, config.watchdog_timeout_s + 1.0)
+        while True:
+            try:
+                self._request_configure(config)
+                break
+            except DeviceRefusedError as exc:
+                if exc.status != proto.BUSY or self._clock() >= deadline:
+                    raise
+                time.sleep(min(0.1, max(0.0, deadline - self._clock())))
         with self._lock:
             self.config = config
             self.specs = None
             self._scale, self._offset = input_scaling(config)
+
+    def _request_configure(self, config: DeviceConfig, **kwargs: Any) -> None:
+        nonce = secrets.randbits(64)
+        self.request(proto.CONFIGURE, proto.encode_configure_request(config, nonce, 0),
+                     nonce=nonce, **kwargs)
 
     def set_function_generator(self, specs: Sequence[GeneratorSpec]) -> None:
         """
@@ -342,9 +408,17 @@ class UdpBackend:
         ----------
         specs : sequence of GeneratorSpec
             The specs.
+
+        Raises
+        ------
+        DeviceConfigError
+            If a generator's output leaves its channel's limits.
         """
-        self.request(proto.FUNCGEN, proto.encode_funcgen(list(specs)))
-        self.specs = list(specs)
+        specs = list(specs)
+        if self.config is not None:
+            check_generator_range(specs, self.config)
+        self.request(proto.FUNCGEN, proto.encode_funcgen(specs))
+        self.specs = specs
 
     def start(self) -> int:
         """
@@ -403,9 +477,10 @@ class UdpBackend:
         step = proto.max_samples_per_frame(n_out, fmt)
         for start in range(0, values.shape[1], step):
             frame = proto.Frame(proto.STREAM_SETPOINT, self._setpoint_sequence, self.epoch,
-                                int(first_sample_index) + start, values[:, start:start + step])
+                                int(first_sample_index) + start, values[:, start:start + step],
+                                self.session)
             self._setpoint_sequence = (self._setpoint_sequence + 1) % SEQ_MOD
-            self._send(proto.encode_frame(frame))
+            self._send(proto.encode_frame(frame, self._signer))
             self.counters['setpoint_frames_sent'] += 1
 
     def read_block(self, timeout_s: float = 1.0) -> Optional[Block]:
@@ -456,26 +531,32 @@ class UdpBackend:
             for key, value in self.reorder.counters.items():
                 if key != 'delivered':
                     out[key] = value
+            epoch = self.epoch
         hb = self.last_heartbeat
         out['device_underrun_samples'] = hb.underrun_samples if hb else 0
         out['device_watchdog_trips'] = hb.watchdog_trips if hb else 0
         out['device_watchdog_tripped'] = int(hb.watchdog_tripped) if hb else 0
-        trip = hb.watchdog_trip_index if hb else None
-        out['device_watchdog_trip_index'] = -1 if trip is None else int(trip)
-        # Silence of the device (no datagram at all) while it should be running and the
-        # host was listening.
-        out['device_silent_ms'] = int(1000.0 * self._silence_s(self._clock())) \
-            if self._running else 0
+        out['device_gap_filled_samples'] = hb.gap_filled_samples if hb else 0
+        out['device_setpoint_frames_rejected'] = hb.setpoint_frames_rejected if hb else 0
+        current = hb is not None and hb.epoch == epoch      # the records of this epoch only
+        for key, value in (('device_watchdog_trip_index', hb.watchdog_trip_index if hb else None),
+                           ('device_first_gap_index', hb.first_gap_index if current else None),
+                           ('device_first_rejected_index',
+                            hb.first_rejected_index if current else None)):
+            out[key] = -1 if value is None else int(value)
+        # Silence of the device (no valid datagram), proven by the receiver, while running.
+        out['device_silent_ms'] = int(1000.0 * self.silence_s()) if self._running else 0
+        out['authenticated'] = int(self.key is not None)
         return out
 
     def close(self) -> None:
-        """Stop the device if running (best effort), then the threads and the socket."""
+        """Release the device (RELEASE stops it and ends our session; best effort), then quit."""
         if self._closed.is_set():
             return
-        if self._running:
-            self._running = False
+        self._running = False
+        if self.session:
             try:
-                self.request(proto.STOP, b'', retries=1)
+                self.request(proto.RELEASE, b'', retries=1)
             except DeviceError:
                 pass
         self._closed.set()
@@ -492,7 +573,7 @@ class UdpBackend:
     # -- requests ---------------------------------------------------------------------------
 
     def request(self, message_type: int, body: bytes, *, timeout_s: Optional[float] = None,
-                retries: Optional[int] = None) -> proto.Message:
+                retries: Optional[int] = None, nonce: int = 0) -> proto.Message:
         """
         Send a control request and wait for its response, retrying on timeout.
 
@@ -506,6 +587,8 @@ class UdpBackend:
             Wait per attempt [s]; ``request_timeout_s`` by default.
         retries : int, optional
             Retries after the first attempt; ``retries`` by default.
+        nonce : int
+            CONFIGURE: the nonce in the body, which the response must echo.
 
         Returns
         -------
@@ -521,33 +604,39 @@ class UdpBackend:
         """
         timeout_s = self.request_timeout_s if timeout_s is None else timeout_s
         retries = self.retries if retries is None else retries
-        slot = _Slot()
         with self._lock:
             rid = self._take_rid()
+            slot = _Slot(message_type, self.session, nonce)
             self._pending[rid] = slot
             self.counters['requests'] += 1
-        data = proto.encode_message(proto.Message(message_type, rid, proto.KIND_REQUEST,
-                                                  proto.OK, body))
+        message = proto.Message(message_type, rid, proto.KIND_REQUEST, proto.OK, body,
+                                slot.session)
+        data = proto.encode_message(message)
         try:
             for attempt in range(retries + 1):
                 if self._closed.is_set():
                     break
                 if attempt:
                     self.counters['request_retries'] += 1
+                if self._signer is not None:    # a fresh counter for every attempt
+                    data = proto.encode_message(message, self._signer)
                 self._send(data)
                 if slot.event.wait(timeout_s):
                     break
         finally:
             with self._lock:
                 self._pending.pop(rid, None)
+                self._answered.append(rid)
         msg = slot.message
         if msg is None:
             self.counters['request_timeouts'] += 1
+            hint = f' ({self._auth_hint})' if self._auth_hint else ''
             raise DeviceTimeoutError(
                 f'{proto.MESSAGE_TYPES[message_type]} to {self.device_address}: no response '
-                f'in {retries + 1} attempts of {timeout_s} s')
+                f'in {retries + 1} attempts of {timeout_s} s{hint}')
         if msg.status != proto.OK:
-            raise DeviceRefusedError(msg.status, msg.error_text())
+            name = proto.STATUS_NAMES.get(msg.status, str(msg.status))
+            raise DeviceRefusedError(msg.status, f'{name}: {msg.error_text()}')
         return msg
 
     def _take_rid(self) -> int:
@@ -565,10 +654,15 @@ class UdpBackend:
 
     def _receive_loop(self) -> None:
         while not self._closed.is_set():
+            t_call = self._clock()
             try:
                 data, addr = self._sock.recvfrom(65536)
             except socket.timeout:
                 data = None
+                if self._clock() - t_call < HOST_STALL_S:
+                    # Nothing was waiting at t_call: every datagram that arrived before it
+                    # has been looked at. (A call the host stalled in proves nothing.)
+                    self._drained_at = t_call
             except OSError:
                 if self._closed.is_set():
                     return
@@ -583,21 +677,65 @@ class UdpBackend:
         if tuple(addr[:2]) != self.device_address:
             self.counters['foreign'] += 1
             return
-        self._last_rx = now
-        if data[:4] == proto.MAGIC_FRAME:
-            self._on_frame(data, now)
-        elif data[:4] == proto.MAGIC_CONTROL:
-            self._on_response(data, now)
-        else:
-            self.counters['corrupt'] += 1
-
-    def _on_frame(self, data: bytes, now: float) -> None:
+        magic = data[:4]
         try:
-            frame = proto.decode_frame(data)
+            if magic == proto.MAGIC_FRAME:
+                item: Any = proto.decode_frame(data, self.key)
+            elif magic == proto.MAGIC_CONTROL:
+                item = proto.decode_message(data, self.key)
+            else:
+                self.counters['corrupt'] += 1
+                return
+        except AuthenticationError as exc:
+            self.counters['unauthenticated'] += 1
+            fields = exc.header
+            if magic == proto.MAGIC_CONTROL and fields and fields[1] == proto.KIND_RESPONSE \
+                    and fields[2] == proto.AUTH_REQUIRED:
+                self._auth_hint = ('the device answers AUTH_REQUIRED: its key setting differs '
+                                   'from the one of this host (a key file on one side only, '
+                                   'or not the same key)')
+            elif self.key is not None:
+                self._auth_hint = 'datagrams from the device fail authentication: same key?'
+            else:
+                self._auth_hint = ('the device sends authenticated datagrams: give this host '
+                                   'its key file')
+            return
         except ProtocolError:
             self.counters['corrupt'] += 1
             return
+        if magic == proto.MAGIC_FRAME:
+            self._on_frame(item, now)
+        else:
+            self._on_response(item, now)
+
+    def _fresh(self, session: int, counter: Optional[int]) -> bool:
+        """With a key: whether a counter of this session was not seen before (lock held)."""
+        if self.key is None:
+            return True
+        guard = self._guards.get(session)
+        if guard is None:
+            if len(self._guards) > 8:           # retired sessions: forget them
+                self._guards = {k: v for k, v in self._guards.items()
+                                if k in (0, self.session)}
+            guard = self._guards[session] = ReplayGuard()
+        if guard.accept(counter):
+            return True
+        self.counters['replayed'] += 1
+        return False
+
+    def _alive(self, now: float) -> None:
+        """A valid datagram from the device (lock held)."""
+        self._last_rx = now
+        self._lost = False
+
+    def _on_frame(self, frame: proto.Frame, now: float) -> None:
         with self._lock:
+            if not self.session or frame.session != self.session:
+                self.counters['wrong_session'] += 1
+                return
+            if not self._fresh(frame.session, frame.auth_counter):
+                return
+            self._alive(now)
             cfg = self.config
             if cfg is None or frame.stream_id != proto.STREAM_MEASUREMENT or \
                     frame.sample_format != proto.FORMAT_INT16 or \
@@ -623,22 +761,35 @@ class UdpBackend:
         if frames:
             self._blocks_ready.notify_all()
 
-    def _on_response(self, data: bytes, now: float) -> None:
-        try:
-            msg = proto.decode_message(data)
-        except ProtocolError:
-            self.counters['corrupt'] += 1
-            return
+    def _on_response(self, msg: proto.Message, now: float) -> None:
         if not msg.is_response:
-            self.counters['corrupt'] += 1
-            return
-        if msg.type == proto.HEARTBEAT and msg.status == proto.OK:
-            self._on_heartbeat(msg)
+            self.counters['unsolicited'] += 1       # a device never sends requests
             return
         with self._lock:
             slot = self._pending.get(msg.request_id)
-            if slot is None or slot.event.is_set():
-                return                          # a late answer to a retried request
+            if slot is not None and slot.event.is_set():
+                slot = None
+            if slot is not None and slot.type != msg.type:
+                slot = None
+            if slot is not None and msg.type == proto.CONFIGURE and msg.status == proto.OK:
+                self._on_configured(slot, msg, now)
+                return
+            hb = self._heartbeats.get(msg.request_id) if msg.type == proto.HEARTBEAT else None
+            sent_session = slot.session if slot is not None else \
+                hb[1] if hb is not None else self.session
+            if msg.session != sent_session:
+                self.counters['wrong_session'] += 1
+                return
+            if not self._fresh(msg.session, msg.auth_counter):
+                return
+            if msg.type == proto.HEARTBEAT:
+                self._on_heartbeat(msg, hb, now)
+                return
+            if slot is None:
+                key = 'late_responses' if msg.request_id in self._answered else 'unsolicited'
+                self.counters[key] += 1
+                return
+            self._alive(now)
             if msg.type == proto.START and msg.status == proto.OK:
                 try:
                     epoch, boot = proto.START_RESPONSE.unpack(msg.body)
@@ -653,30 +804,86 @@ class UdpBackend:
             slot.message = msg
             slot.event.set()
 
-    def _on_heartbeat(self, msg: proto.Message) -> None:
+    def _on_configured(self, slot: _Slot, msg: proto.Message, now: float) -> None:
+        """An OK CONFIGURE response: adopt the session it issues (lock held)."""
+        try:
+            nonce, session = proto.decode_configure_response(msg.body)
+        except ProtocolError:
+            self.counters['corrupt'] += 1
+            return
+        if nonce != slot.nonce or session != msg.session:
+            self.counters['wrong_session'] += 1         # not the answer to this request
+            return
+        guard = ReplayGuard()
+        if self.key is not None and not guard.accept(msg.auth_counter):
+            self.counters['replayed'] += 1              # pragma: no cover (a fresh guard)
+            return
+        self.session = session
+        self._guards = {0: self._guards.get(0) or ReplayGuard(), session: guard}
+        self._session_lost = False
+        self.lost_reason = ''
+        self._alive(now)
+        slot.message = msg
+        slot.event.set()
+
+    def _on_heartbeat(self, msg: proto.Message, sent: Optional[Tuple[float, int]],
+                      now: float) -> None:
+        # lock held
+        if sent is None:
+            late = msg.request_id in self._heartbeats_missed or \
+                msg.request_id in self._answered
+            self.counters['late_responses' if late else 'unsolicited'] += 1
+            return
+        del self._heartbeats[msg.request_id]
+        self._answered.append(msg.request_id)
+        self._alive(now)
+        if msg.status != proto.OK:
+            self.counters['heartbeat_refusals'] += 1
+            if msg.status == proto.NOT_OWNER and sent[1] == self.session and self.session:
+                if not self._session_lost:
+                    self._session_lost = True
+                    self.counters['sessions_lost'] += 1
+                    self.lost_reason = msg.error_text()
+                if self._running:
+                    self._need_recover = True
+            return
         try:
             reply = proto.decode_heartbeat_reply(msg.body)
         except ProtocolError:
             self.counters['corrupt'] += 1
             return
-        with self._lock:
-            if self._heartbeats.pop(msg.request_id, None) is None:
-                return
-            self.counters['heartbeat_replies'] += 1
-            self.last_heartbeat = reply
-            fresh = (msg.request_id - self._hb_valid_from) % SEQ_MOD < SEQ_HALF
-            if self._running and fresh and (reply.state != proto.STATE_RUNNING or
-                                            reply.boot_id != self.boot_id or
-                                            reply.epoch != self.epoch):
-                self._need_recover = True
+        self.counters['heartbeat_replies'] += 1
+        self.last_heartbeat = reply
+        fresh = (msg.request_id - self._hb_valid_from) % SEQ_MOD < SEQ_HALF
+        if self._running and fresh and (reply.state != proto.STATE_RUNNING or
+                                        reply.boot_id != self.boot_id or
+                                        reply.epoch != self.epoch):
+            self._need_recover = True
 
     # -- the supervisor ---------------------------------------------------------------------
 
-    def _silence_s(self, now: float) -> float:
-        """Seconds the device has been silent while the host was listening."""
-        if now - self._last_wake > HOST_STALL_S:
-            return 0.0          # the supervisor has not run lately: the host is stalled
-        return max(0.0, now - max(self._last_rx, self._awake_since))
+    def silence_s(self) -> float:
+        """
+        How long the device has been silent, as far as the receiver can prove [s].
+
+        From the last valid datagram to the receiver's latest look into an empty socket: a
+        stalled host (whose receiver did not run) does not count its own stall as silence,
+        since the datagrams the device sent meanwhile wait in the socket and are read first.
+
+        Returns
+        -------
+        float
+            Seconds, >= 0.
+        """
+        return max(0.0, self._drained_at - self._last_rx)
+
+    def _is_lost(self, now: float) -> bool:
+        if self.silence_s() > self.device_timeout_s:
+            return True
+        # A receiver that never finds its socket empty (a flood) proves nothing: bound it,
+        # once the host has been running steadily again.
+        return now - self._last_rx > self.device_timeout_s + FLOOD_GRACE_S and \
+            now - self._awake_since > HOST_STALL_S
 
     def _supervise_loop(self) -> None:
         next_beat = self._clock()
@@ -686,37 +893,43 @@ class UdpBackend:
                 self._awake_since = now
                 self.counters['host_stalls'] += 1
             self._last_wake = now
+            if self._running and not self._lost and self._is_lost(now):
+                with self._lock:
+                    self._lost = True
+                    self.counters['device_losses'] += 1
             if now < next_beat:
                 continue
             next_beat = max(next_beat + self.heartbeat_period_s, now)
-            if self.config is None:
+            if self.config is None or not self.session:
                 continue
             self._heartbeat(now)
-            lost = self._silence_s(now) > self.device_timeout_s
-            if self._running and self.auto_reconnect and (lost or self._need_recover):
+            if self._running and self.auto_reconnect and (self._lost or self._need_recover):
                 self._recover()
 
     def _heartbeat(self, now: float) -> None:
         with self._lock:
-            for rid, sent in list(self._heartbeats.items()):
+            for rid, (sent, _) in list(self._heartbeats.items()):
                 if now - sent >= self.heartbeat_period_s:
                     del self._heartbeats[rid]
+                    self._heartbeats_missed.append(rid)
                     self.counters['heartbeat_misses'] += 1
             rid = self._take_rid()
-            self._heartbeats[rid] = now
+            session = self.session
+            self._heartbeats[rid] = (now, session)
             self.counters['heartbeats_sent'] += 1
         body = proto.HEARTBEAT_REQUEST.pack(time.monotonic_ns() & (2 ** 64 - 1))
-        self._send(proto.encode_message(proto.Message(proto.HEARTBEAT, rid, body=body)))
+        self._send(proto.encode_message(proto.Message(proto.HEARTBEAT, rid, body=body,
+                                                      session=session), self._signer))
 
     def _recover(self) -> None:
         timeout_s = min(self.request_timeout_s, self.heartbeat_period_s)
         try:
-            try:
-                self.request(proto.STOP, b'', timeout_s=timeout_s, retries=0)
-            except DeviceRefusedError:
-                pass
-            self.request(proto.CONFIGURE, proto.encode_configure(self.config, 0),
-                         timeout_s=timeout_s, retries=1)
+            if not self._session_lost:
+                try:
+                    self.request(proto.STOP, b'', timeout_s=timeout_s, retries=0)
+                except DeviceRefusedError:
+                    pass
+            self._request_configure(self.config, timeout_s=timeout_s, retries=1)
             if self.specs is not None:
                 self.request(proto.FUNCGEN, proto.encode_funcgen(self.specs),
                              timeout_s=timeout_s, retries=1)
@@ -725,5 +938,6 @@ class UdpBackend:
             return                              # still gone: try again at the next beat
         with self._lock:
             self._need_recover = False
-            self._last_rx = self._clock()
+            self._alive(self._clock())
+            self._drained_at = self._last_rx
             self.counters['reconnects'] += 1
