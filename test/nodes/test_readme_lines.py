@@ -247,7 +247,9 @@ def test_device_emulator_and_bridge_lines_as_typed(tmp_path, processes, executor
     assert ros_harness.wait_until(lambda: 'listening on' in emulator.output(), TIMEOUT_S), \
         emulator.output()
     assert emulator.output().splitlines()[0] == '5555'
-    bridge_argv = readme_lines.readme_argv('ros2 run emfc_ros daq_bridge')
+    bridge_argv = readme_lines.readme_argv(
+            'ros2 run emfc_ros daq_bridge --ros-args -r __ns:=/emfc --params-file '
+            'config/daq_bridge_udp.yaml -p udp.device_port:=5555')
     params = yaml.safe_load((REPO / 'config' / 'daq_bridge_udp.yaml').read_text())
     inputs = params['/**']['ros__parameters']['inputs']
     bridge = processes.start(as_started(bridge_argv), cwd=REPO)
@@ -278,7 +280,9 @@ def test_the_table_emulator_lines_open_and_close_the_loop(
                                       TIMEOUT_S), emulator.output()
         port = int(emulator.output().splitlines()[0])       # default --port 0: any free one
         # The README's bridge line with this device's port.
-        typed = readme_lines.readme_argv('ros2 run emfc_ros daq_bridge')
+        typed = readme_lines.readme_argv(
+            'ros2 run emfc_ros daq_bridge --ros-args -r __ns:=/emfc --params-file '
+            'config/daq_bridge_udp.yaml -p udp.device_port:=5555')
         bridge_argv = [f'udp.device_port:={port}' if a.startswith('udp.device_port:=') else a
                        for a in typed]
         bridge = processes.start(as_started(bridge_argv), cwd=REPO)
