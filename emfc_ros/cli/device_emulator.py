@@ -53,8 +53,8 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument('--control-rate-Hz', type=float, default=10000.0,
                         help='in-loop controller rate [Hz] (the device rate must be a whole '
                              'multiple)')
-    parser.add_argument('--control-notch-Hz', type=float, default=410.0,
-                        help='notch of the in-loop controller [Hz] (0: none)')
+    parser.add_argument('--control-notch-Hz', type=float, default=0.0,
+                        help='notch of the in-loop controller [Hz] (default 0: none)')
     parser.add_argument('--allow-remote', action='store_true',
                         help='permit a non-loopback bind address (exposes the emulator)')
     return parser

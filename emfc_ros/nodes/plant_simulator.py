@@ -143,13 +143,17 @@ PARAMETERS = {
                                'coil excitation is then added to the controller output'),
     'control.rate_Hz': (10000.0, 'in-loop controller rate [Hz]; sample_rate_Hz must be a '
                                  'whole multiple'),
-    'control.crossover_Hz': (100.0, 'design crossover of the in-loop controller [Hz]'),
+    'control.crossover_Hz': (130.0, 'design crossover of the in-loop controller [Hz]'),
     'control.phase_margin_deg': (40.0, 'design phase margin [deg]'),
     'control.delay_samples': (1.0, 'controller computation and transport delay [controller '
                                    'samples] (the hold adds half a sample); times the '
                                    'simulator samples per controller sample a whole number '
                                    '>= 1'),
-    'control.notch_Hz': (410.0, 'notch at the lever resonance [Hz]; 0: none'),
+    'control.notch_Hz': (0.0, 'notch centre [Hz]; 0: none (the default: the lever mode, 410 Hz '
+                              'empty, 333 Hz with 200 g, stays phase-stabilised at 10 kHz)'),
+    'control.max_load_kg': (0.2, 'top of the weighing range [kg]: the design is checked '
+                                 '(margins, exact closed-loop poles) at loads from 0 to here and '
+                                 'refused if it fails'),
     'control.position_setpoint_m': (0.0, 'lever-end position the loop holds [m]'),
 }
 CONTROL_PREFIX = 'control.'

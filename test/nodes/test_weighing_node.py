@@ -29,8 +29,7 @@ import ros_harness
 TIMEOUT_S = 30.0
 RATE_HZ = 20000.0
 BLOCK = 1000
-LOOP = LoopConfig(rate_Hz=10000.0, crossover_Hz=100.0, phase_margin_deg=40.0,
-                  delay_samples=1.5, notch_Hz=410.0)
+LOOP = LoopConfig()     # the default in-loop design: 10 kHz, 130 Hz, no notch
 SOURCE = 'test_closed_loop'
 
 
