@@ -192,10 +192,13 @@ def test_the_documented_closed_loop_lines_run_as_typed(processes, executor, ros_
     user = Terminals(processes, executor, ros_context)
     for line in docs[:3]:
         user.run(line)
-    echoed = user.echoed['/weighing/mass_kg']
+    echoed = user.echoed['/weighing/reading']
 
     def mass():
-        return [m.data for m in echoed]
+        # the value a user reads in the echoed reading (uncalibrated: nobody zeroed)
+        values = [{kv.key: kv.value for kv in m.status[0].values} for m in echoed
+                  if m.status[0].level != DiagnosticStatus.ERROR]
+        return [float(v['mass_kg']) for v in values]
     # the weighing window (1 s) fills and the reading settles
     assert ros_harness.spin_until(executor, lambda: _settled(mass()) is not None,
                                   START_TIMEOUT_S), [p.output() for p in user.started]
