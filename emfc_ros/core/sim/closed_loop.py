@@ -359,6 +359,38 @@ class ClosedLoopSimulator:
         out[-1] = full[chain.N_OUT + 1]
         return out
 
+    def step_loads(self, load_mass_kg, setpoints: Optional[np.ndarray] = None) -> np.ndarray:
+        """
+        Simulate a block with the mass on the pan given per sample (load steps at samples).
+
+        Parameters
+        ----------
+        load_mass_kg : array_like, shape (n,)
+            Mass on the pan at each sample [kg]; where it changes, :meth:`set_load` is applied
+            from that sample on (the load-changer coupling is kept).
+        setpoints : ndarray, shape (2, n), optional
+            Excitation (default zeros).
+
+        Returns
+        -------
+        ndarray, shape (len(channel_names), n)
+            Outputs, as :meth:`step_block`.
+        """
+        load = np.asarray(load_mass_kg, dtype=float)
+        if load.ndim != 1:
+            raise ValueError(f'load_mass_kg must be 1-D, got shape {load.shape}')
+        u = np.zeros((2, load.size)) if setpoints is None else np.asarray(setpoints, dtype=float)
+        if u.shape != (2, load.size):
+            raise ValueError(f'setpoints must have shape (2, {load.size}), got {u.shape}')
+        edges = np.concatenate(([0], np.nonzero(np.diff(load))[0] + 1, [load.size]))
+        parts = []
+        for a, b in zip(edges[:-1], edges[1:]):
+            if b > a:
+                if load[a] != self.load_mass_kg:
+                    self.set_load(float(load[a]), self.load_changer_coupled)
+                parts.append(self.step_block(u[:, a:b]))
+        return np.concatenate(parts, axis=1) if parts else self.step_block(u)
+
     def _precise_current_A(self, current_A: np.ndarray, first: int,
                            quantise: bool) -> np.ndarray:
         ch = self.current_channel

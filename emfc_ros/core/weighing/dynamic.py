@@ -37,7 +37,7 @@ adaptive filter runs the time-varying Kalman filter instead (the covariance foll
 Riccati recursion every sample, in scaled coordinates) with a small ``q`` (default 1e-6
 N/sqrt(s)), and watches its innovations: when the normalised innovation squared, summed over
 the last ``change_window_s`` (2 ms), exceeds ``window + change_threshold_sigma *
-sqrt(2 window)`` (its mean plus 8 standard deviations under the model) times the running mean
+sqrt(2 window)`` (its mean plus 12 standard deviations under the model) times the running mean
 of the normalised innovation squared over the last second (1 when the assumed position noise
 is right: the test adapts to a noise assumed somewhat wrong), a change is declared
 and the covariance of the force is inflated to ``(max_step_kg g)^2`` (the states' by 100
@@ -221,7 +221,7 @@ class DynamicWeigher:
                  coil_force_noise_N_rms: float = 0.0, settle_window_s: float = 0.02,
                  settle_threshold_kg: float = 1.0e-6, initial_pan_force_N=None,
                  backend: str = 'auto', adaptive: bool = True, change_window_s: float = 0.002,
-                 change_threshold_sigma: float = 8.0, max_step_kg: float = 0.5,
+                 change_threshold_sigma: float = 12.0, max_step_kg: float = 0.5,
                  settle_sigma: float = 3.0,
                  reference_random_walk_N_per_sqrt_s: float = 1.0e-4) -> None:
         if isinstance(model_or_mechanics, LinearModel):
@@ -406,18 +406,20 @@ class DynamicWeigher:
             change = since == 1.0
             if self._fresh and change.size:
                 change[0] = False           # the start, not a declared change
-            reference = np.empty(y.size)
-            self._run(self.transition, self.coil_input, self.output_row, self._reference_gain,
-                      self._reference_state, y - self.position_m0, f - self.coil_force_N0,
-                      reference, np.empty(y.size))
-            lag = np.abs(self._lag_mean(reference - w))
-            since_ok = (since >= self._window) & (lag < 0.5 * self._threshold_N)
+            since_ok = since >= self._window
         else:
             self._run(self.transition, self.coil_input, self.output_row, self.gain, self._state,
                       y - self.position_m0, f - self.coil_force_N0, w, e)
             u = np.full(y.size, self.pan_force_u_N)
             change = np.zeros(y.size, dtype=bool)
             since_ok = np.ones(y.size, dtype=bool)
+        # the quick reference filter: how far the estimate still has to go
+        reference = np.empty(y.size)
+        self._run(self.transition, self.coil_input, self.output_row, self._reference_gain,
+                  self._reference_state, y - self.position_m0, f - self.coil_force_N0,
+                  reference, np.empty(y.size))
+        lag = np.abs(self._lag_mean(reference - w))
+        since_ok &= lag < 0.5 * self._threshold_N
         self._fresh = self._fresh and y.size == 0
         pan = w + self.pan_force_N0
         settled = self._settled(pan) & since_ok & (self._settle_sigma * u < self._threshold_N)

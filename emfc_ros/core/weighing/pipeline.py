@@ -36,13 +36,14 @@ import numpy as np
 
 from emfc_ros.core.model.parameters import MechanicalParameters
 from emfc_ros.core.records import same_clock_records
-from emfc_ros.core.weighing.calibration import WeighingCalibration
+from emfc_ros.core.weighing.calibration import (nominal_sensitivity_kg_per_N,
+                                                WeighingCalibration)
 from emfc_ros.core.weighing.compensation import compensation_force_N
 from emfc_ros.core.weighing.dynamic import DEFAULT_FORCE_RANDOM_WALK_N_PER_SQRT_S, DynamicWeigher
 from emfc_ros.core.weighing.errors import WeighingError
 from emfc_ros.core.weighing.reading import (DEFAULT_STABILITY_THRESHOLD_KG, Reading,
                                             ReadingFilter)
-from emfc_ros.core.weighing.resolution import quantisation_u
+from emfc_ros.core.weighing.resolution import quantisation_bias_bound, quantisation_u
 
 
 @dataclass(frozen=True)
@@ -151,6 +152,10 @@ class WeighingPipeline:
         readings' look-ahead.
     current_resolution : (float, float)
         The current channel's ``(step, noise_rms)`` [A] (:mod:`.resolution`).
+    adaptive : bool, optional
+        The estimator's change-adaptive mode; default: on, unless the current channel's
+        quantisation bound at the pan exceeds ``settle_threshold_kg`` (the 16-bit monitor:
+        25 mg), whose wandering error would fire the change test at constant load.
     """
 
     def __init__(self, mechanics: MechanicalParameters,
@@ -164,8 +169,18 @@ class WeighingPipeline:
                  force_random_walk_N_per_sqrt_s: float = DEFAULT_FORCE_RANDOM_WALK_N_PER_SQRT_S,
                  dynamic_period_s: float = 0.01, settle_threshold_kg: float = 1.0e-6,
                  settle_window_s: float = 0.02,
-                 current_resolution: Tuple[float, float] = (0.0, 0.0)) -> None:
+                 current_resolution: Tuple[float, float] = (0.0, 0.0),
+                 adaptive: Optional[bool] = None) -> None:
         self._motor = tuple(float(k) for k in motor_coeffs_N_per_A_per_mm_pow)
+        step, noise = (float(v) for v in current_resolution)
+        self._current_u_A = quantisation_u(step, noise)
+        if adaptive is None:
+            # a current channel coarser than the settle threshold (its quantisation error
+            # wanders with the loop's dither) would make the change test fire at constant
+            # load: the quiet steady-state filter then
+            bias_kg = (abs(nominal_sensitivity_kg_per_N(mechanics)) * self._motor[0]
+                       * quantisation_bias_bound(step, noise))
+            adaptive = bias_kg < float(settle_threshold_kg)
         self._filter = ReadingFilter(sample_rate_Hz, calibration, averaging_time_s,
                                      reading_period_s, stability_time_s, stability_threshold_kg,
                                      n_sub_blocks)
@@ -178,15 +193,14 @@ class WeighingPipeline:
             self._weigher = DynamicWeigher(
                 mechanics, self._fs, position_noise_m_rms=position_noise_m_rms,
                 force_random_walk_N_per_sqrt_s=force_random_walk_N_per_sqrt_s,
-                settle_window_s=settle_window_s, settle_threshold_kg=settle_threshold_kg)
+                settle_window_s=settle_window_s, settle_threshold_kg=settle_threshold_kg,
+                adaptive=adaptive)
         self._dyn_period = max(1, int(round(float(dynamic_period_s) * self._fs)))
         if not (math.isfinite(float(dynamic_period_s)) and float(dynamic_period_s) > 0.0):
             raise WeighingError(f'dynamic_period_s: must be finite and > 0, got '
                                 f'{dynamic_period_s!r}')
         self._dyn_lookahead = max(1, int(round(float(settle_window_s) * self._fs)))
         self._lookahead = self._filter.period_samples
-        step, noise = (float(v) for v in current_resolution)
-        self._current_u_A = quantisation_u(step, noise)
         self._k0_N_per_A = self._motor[0]
         # the static coil gain [m/N] turns a lever displacement into a spring force
         self._coil_gain_m_per_N = (self._weigher.coil_gain_m_per_N if self._weigher is not None
