@@ -3,7 +3,9 @@ emfc-device-emulator: the UDP device emulator (simulated balance inside) as a pr
 
 ``emfc-device-emulator [--bind 127.0.0.1] [--port N] [--config balance.yaml] [--channels 4]
 [--faults drop=0.01,duplicate=0.01,reorder=0.01,corrupt=0.01,delay_ms=5,stall_s=2,
-stall_after_s=1,die_after_s=30] [--seed S] [--duration-s T] [--allow-remote]``
+stall_after_s=1,die_after_s=30] [--seed S] [--duration-s T] [--allow-remote]
+[--control-crossover-Hz 130 [--control-rate-Hz 10000] [--control-notch-Hz 0]]
+[--load 0:0,2:0.0734829]``
 
 Prints the bound UDP port alone on the first line of stdout (``--port 0``, the default,
 picks a free one), then serves until SIGINT or SIGTERM, ``--duration-s`` or the injected
@@ -26,6 +28,7 @@ from typing import List, Optional
 from emfc_ros.core.control.loop_config import loop_config
 from emfc_ros.core.device.emulator import check_bind_host, DeviceEmulator, Faults
 from emfc_ros.core.device.sim_backend import load_parameters
+from emfc_ros.core.weighing.profiles import parse_load_schedule
 
 PROG = 'emfc-device-emulator'
 
@@ -55,6 +58,9 @@ def _parser() -> argparse.ArgumentParser:
                              'multiple)')
     parser.add_argument('--control-notch-Hz', type=float, default=0.0,
                         help='notch of the in-loop controller [Hz] (default 0: none)')
+    parser.add_argument('--load', default='',
+                        help="mass on the pan over the device's sample clock: "
+                             "'time_s:mass_kg,...' (e.g. 0:0,2:0.0734829), from every start")
     parser.add_argument('--allow-remote', action='store_true',
                         help='permit a non-loopback bind address (exposes the emulator)')
     return parser
@@ -88,6 +94,8 @@ def main(argv: Optional[List[str]] = None) -> int:
         faults = Faults.parse(args.faults)
         params = load_parameters(args.config)
         options = {}
+        if args.load:
+            options['load_schedule'] = parse_load_schedule(args.load)
         if args.control_crossover_Hz > 0.0:
             options['control'] = loop_config({'crossover_Hz': args.control_crossover_Hz,
                                               'rate_Hz': args.control_rate_Hz,
