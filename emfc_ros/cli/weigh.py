@@ -283,8 +283,8 @@ class _Session:
         self.rate = description.sample_rate_Hz
         changes = description.extra.get('load_changes') or []
         for index, mass in changes[self.load_changes_seen:]:
-            self._event_at(index, f'{mass * 1e3:g} g on the pan (sample {index}, the plant\'s '
-                                  'description)')
+            self._event_at(index, f'{mass * 1e3:g} g on the pan (sample {index}, from the '
+                                  'plant description)')
         self.load_changes_seen = max(self.load_changes_seen, len(changes))
 
     def _event_at(self, index: int, text: str) -> None:
@@ -340,8 +340,8 @@ class _Session:
             speed = 'as fast as it runs' if self.args.speed == 0 else \
                 f'{self.args.speed:g} x real time'
             return f'simulated balance in closed loop, {speed}'
-        return 'a device through the daq_bridge' + (' (emulator)' if self.args.start_emulator
-                                                     else f' at {self.args.device}')
+        where = ' (emulator)' if self.args.start_emulator else f' at {self.args.device}'
+        return 'a device through the daq_bridge' + where
 
     def _interrupted(self) -> int:
         at = f'{self.last_time_s:.3f} s of sample time' if self.last_time_s is not None \
