@@ -185,6 +185,36 @@ def noise_mg(params: BalanceParameters, seed: int) -> Dict[str, float]:
             'moving_average_1s_std_mg': float(np.std(ones, ddof=1) * 1e6)}
 
 
+def loop_table(params: BalanceParameters) -> List[Dict]:
+    """The default in-loop design and the former one (100 Hz, notch at 410 Hz) over 0..200 g."""
+    from emfc_ros.core.control.robust import load_margins
+    from emfc_ros.core.sim.closed_loop import design_for
+    from emfc_ros.core.weighing import WeighingCalibration as Cal
+    out = []
+    sensitivity = Cal.nominal(params.mechanics).sensitivity_kg_per_N
+    for name, config in (('default (130 Hz, no notch)', LOOP),
+                         ('former (100 Hz, notch 410 Hz)',
+                          LoopConfig(crossover_Hz=100.0, notch_Hz=410.0, max_load_kg=0.0))):
+        design = design_for(Simulator(params, FS_HZ, seed=0), config)
+        for load in (0.0, 0.05, 0.1, 0.2):
+            m = load_margins(params.mechanics, design.controller, config.delay_samples, load)
+            sim = Simulator(params, FS_HZ, seed=0, noise=False, quantisation=False)
+            loop = ClosedLoopSimulator(sim, config, design=design)
+            n = int(0.6 * FS_HZ)
+            out_ = loop.step_loads(np.concatenate((np.zeros(int(0.3 * FS_HZ)), np.full(n, load))))
+            force = out_[loop.channel_names.index('coil_force_true_N'), -n:]
+            y = out_[loop.channel_names.index('position_true_m'), -n:]
+            after = np.abs(sensitivity * (force - force[-1]))[int(0.1 * FS_HZ):]
+            out.append({'design': name, 'load_g': load * 1e3, 'mode_Hz': m.mode_Hz,
+                        'crossover_Hz': m.crossover_Hz, 'sensitivity_peak': m.sensitivity_peak,
+                        'lower_gm_dB': m.lower_gain_margin_dB,
+                        'upper_gm_dB': m.upper_gain_margin_dB,
+                        'pole_radius': m.pole_radius,
+                        'step_deviation_after_100ms_mg': float(after.max() * 1e6),
+                        'lever_peak_um': float(np.abs(y).max() * 1e6)})
+    return out
+
+
 def cpu_costs(params: BalanceParameters, repeats: int) -> Dict[str, float]:
     n = int(2 * FS_HZ)
 
@@ -262,12 +292,22 @@ def main(argv: List[str] = None) -> int:
           f'{sum(not np.isfinite(t) for t in up_to_100)}')
     wrong = sum(r['stable_reading_wrong'] + r['settled_dynamic_wrong'] for r in rows)
     print(f'stable readings or settled dynamic readings more than 1 mg off: {wrong}')
+    loops = loop_table(params)
+    print('\nthe loop over the weighing range (margins of the loaded model; a step from 0 g to '
+          'the load without noise: largest coil-force deviation after 100 ms, lever peak):')
+    for r in loops:
+        print(f'  {r["design"]:30s} {r["load_g"]:5.0f} g: mode {r["mode_Hz"]:5.1f} Hz, '
+              f'crossover {r["crossover_Hz"]:5.1f} Hz, Ms {r["sensitivity_peak"]:5.2f}, gain '
+              f'margins {r["lower_gm_dB"]} / {r["upper_gm_dB"]} dB, poles |z| <= '
+              f'{r["pole_radius"]:.4f}; step: {r["step_deviation_after_100ms_mg"]:.3f} mg after '
+              f'100 ms, lever {r["lever_peak_um"]:.1f} um')
     noise = noise_mg(params, args.first_seed + args.seeds)
     print('noise at 50 g: ' + ', '.join(f'{k} {v:.4f}' for k, v in noise.items()))
     costs = cpu_costs(params, args.repeats)
     print('CPU: ' + ', '.join(f'{k} {v:.0f}' for k, v in costs.items()))
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps({'steps': rows, 'summary': summary, 'noise': noise,
+                                     'loops': loops,
                                      'cpu': costs, 'machine': platform.platform()}, indent=1))
     print(f'written {args.json}')
     return 0
