@@ -298,7 +298,7 @@ def main(argv: List[str] = None) -> int:
     for r in loops:
         print(f'  {r["design"]:30s} {r["load_g"]:5.0f} g: mode {r["mode_Hz"]:5.1f} Hz, '
               f'crossover {r["crossover_Hz"]:5.1f} Hz, Ms {r["sensitivity_peak"]:5.2f}, gain '
-              f'margins {r["lower_gm_dB"]} / {r["upper_gm_dB"]} dB, poles |z| <= '
+              f'margins {r["lower_gm_dB"]:.1f} / {r["upper_gm_dB"]:.1f} dB, poles |z| <= '
               f'{r["pole_radius"]:.4f}; step: {r["step_deviation_after_100ms_mg"]:.3f} mg after '
               f'100 ms, lever {r["lever_peak_um"]:.1f} um')
     noise = noise_mg(params, args.first_seed + args.seeds)
