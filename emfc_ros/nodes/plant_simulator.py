@@ -9,7 +9,10 @@ Topics (relative to the node namespace):
 - ``measurements`` (out): every simulated channel in one block stream, on the excitation's
   sample clock when owning time; ``measurements/position``, ``measurements/current`` and
   ``measurements/force`` (out): the same samples grouped as named streams. Each has a
-  latched ``<topic>/description``.
+  latched ``<topic>/description``; its ``extra`` states each channel's quantisation step and
+  input noise (``resolution``), the load on the pan (``load_mass_kg``) and every run-time
+  change with the sample it took effect at (``load_changes``; parameter ``load_mass_kg`` or
+  ``load_schedule``).
 - ``joint_states`` (``sensor_msgs/JointState``, out): joint ``lever``: position [m],
   velocity [m/s], effort = coil force [N], at ``state_rate_Hz``.
 - ``joint_commands`` (``sensor_msgs/JointState``, in; ros2_control topic-based hardware) and
