@@ -57,7 +57,7 @@ def kalman_block(phi, gamma, c, gain, state, position_m, coil_force_N, pan_force
 
 def adaptive_block(phi, gamma, c, r, q_w, x, p, position_m, coil_force_N, window, threshold,
                    inflation, nis_ring, counters, pan_force_N, pan_force_var, innovation_m,
-                   since_change, nis_alpha):
+                   since_change, nis_alpha, w_low, w_high, switch_var):
     """
     Run the time-varying (change-adaptive) filter over one block, in place.
 
@@ -111,6 +111,15 @@ def adaptive_block(phi, gamma, c, r, q_w, x, p, position_m, coil_force_N, window
         Output: samples since the last declared change (this sample counts 1).
     nis_alpha : float
         Weight of a new sample in the running mean of the normalised innovation squared.
+    w_low, w_high, switch_var : float
+        The model's load band (scaled force): the block stops after the first sample whose
+        force estimate, known to a variance below ``switch_var``, left ``[w_low, w_high]``,
+        so that the caller switches to the model of that load.
+
+    Returns
+    -------
+    int
+        Samples processed (fewer than the block's when the caller must switch models).
     """
     n = x.shape[0]
     cp = np.empty(n)
@@ -189,3 +198,6 @@ def adaptive_block(phi, gamma, c, r, q_w, x, p, position_m, coil_force_N, window
                 p[i, j] = acc
                 p[j, i] = acc
         p[n - 1, n - 1] += q_w
+        if (x[n - 1] < w_low or x[n - 1] > w_high) and p[n - 1, n - 1] < switch_var:
+            return k + 1
+    return position_m.shape[0]

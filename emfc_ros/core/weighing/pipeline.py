@@ -8,9 +8,10 @@ it computes the compensation force ``k(y) I`` and produces
 * **readings** (:class:`~emfc_ros.core.weighing.reading.Reading`): the moving average of
   :class:`~emfc_ros.core.weighing.reading.ReadingFilter`, one per reading period, each
   released only once the samples of one more reading period (the look-ahead) are in. A
-  reading is ``steady`` when the dynamic estimate stayed within the stability threshold over
-  its whole window *and* the look-ahead (so a load change shortly after the window, which
-  the window itself cannot show yet, still makes the reading unsteady), ``stable`` when it is
+  reading is ``steady`` when the dynamic estimate stayed within the stability threshold from
+  the loop's settling time (0.1 s) before its window to the end of the look-ahead (so a load
+  change shortly after the window, which the window itself cannot show yet, still makes the
+  reading unsteady, and so does the loop's transient after a change), ``stable`` when it is
   steady and the balance has been zeroed (an uncalibrated reading is never stable). Its
   uncertainty adds to the statistical and calibration terms the current channel's
   quantisation (:mod:`.resolution`) and the lever's residual displacement;
@@ -156,6 +157,11 @@ class WeighingPipeline:
         The estimator's change-adaptive mode; default: on, unless the current channel's
         quantisation bound at the pan exceeds ``settle_threshold_kg`` (the 16-bit monitor:
         25 mg), whose wandering error would fire the change test at constant load.
+    loop_settle_s : float
+        How long the loop needs after a load change until the compensation force is within
+        0.1 mg of its final value [s] (the default design: under 100 ms for any step up to
+        200 g, ``docs/closed_loop.md``): a reading is steady only if the load was constant
+        from this long before its window on.
     """
 
     def __init__(self, mechanics: MechanicalParameters,
@@ -170,7 +176,7 @@ class WeighingPipeline:
                  dynamic_period_s: float = 0.01, settle_threshold_kg: float = 1.0e-6,
                  settle_window_s: float = 0.02,
                  current_resolution: Tuple[float, float] = (0.0, 0.0),
-                 adaptive: Optional[bool] = None) -> None:
+                 adaptive: Optional[bool] = None, loop_settle_s: float = 0.1) -> None:
         self._motor = tuple(float(k) for k in motor_coeffs_N_per_A_per_mm_pow)
         step, noise = (float(v) for v in current_resolution)
         self._current_u_A = quantisation_u(step, noise)
@@ -201,6 +207,10 @@ class WeighingPipeline:
                                 f'{dynamic_period_s!r}')
         self._dyn_lookahead = max(1, int(round(float(settle_window_s) * self._fs)))
         self._lookahead = self._filter.period_samples
+        if not (math.isfinite(float(loop_settle_s)) and float(loop_settle_s) >= 0.0):
+            raise WeighingError(f'loop_settle_s: must be finite and >= 0, got '
+                                f'{loop_settle_s!r}')
+        self._settle = int(round(float(loop_settle_s) * self._fs))
         self._k0_N_per_A = self._motor[0]
         # the static coil gain [m/N] turns a lever displacement into a spring force
         self._coil_gain_m_per_N = (self._weigher.coil_gain_m_per_N if self._weigher is not None
@@ -333,9 +343,10 @@ class WeighingPipeline:
                 self._next_dynamic += self._dyn_period
         # keep what pending readings, the next dynamic reading and readings still to close
         # (their window reaches back one window and one period) need
-        keep_from = min([last + 1 - self._filter.window_samples - self._filter.period_samples,
-                         self._next_dynamic]
-                        + [r.sample_index - r.n_samples + 1 for r in self._pending])
+        keep_from = min([last + 1 - self._filter.window_samples - self._filter.period_samples
+                         - self._settle, self._next_dynamic]
+                        + [r.sample_index - r.n_samples + 1 - self._settle
+                           for r in self._pending])
         self._history.trim(keep_from)
         return readings, dynamic
 
@@ -361,8 +372,10 @@ class WeighingPipeline:
         position = self._history.get('position', start, n)
         mean_y = float(np.mean(position)) if position.size else math.nan
         if self._weigher is not None:
-            pan = self._history.get('pan', start, n + self._lookahead)
-            covered = pan.size == reading.n_samples + self._lookahead
+            # the load constant from the loop's settling time before the window until the end
+            # of the look-ahead (the dynamic estimate is quicker than the loop's force)
+            pan = self._history.get('pan', start - self._settle, n + self._lookahead)
+            covered = pan.size == reading.n_samples + self._lookahead + self._settle
             spread_kg = (abs(cal.sensitivity_kg_per_N * self._weigher.force_ratio)
                          * float(np.ptp(pan))) if pan.size else math.inf
             steady = bool(complete and covered and reading.window_full
