@@ -43,6 +43,7 @@ COMMANDS = {
     'emfc-device-emulator': 'emfc_ros.cli.device_emulator:main',
     'emfc-model-summary': 'emfc_ros.cli.model_summary:main',
     'emfc-simulate': 'emfc_ros.cli.simulate:main',
+    'emfc-weigh': 'emfc_ros.cli.weigh:main',
 }
 
 # On a full ROS install (ROS_DISTRO set by its setup script) rclpy and the message

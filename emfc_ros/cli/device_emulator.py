@@ -5,7 +5,8 @@ emfc-device-emulator: the UDP device emulator (simulated balance inside) as a pr
 [--faults drop=0.01,duplicate=0.01,reorder=0.01,corrupt=0.01,delay_ms=5,stall_s=2,
 stall_after_s=1,die_after_s=30,setpoint_drop=0.01] [--seed S] [--duration-s T]
 [--key-file device.key] [--allow-remote] [--load-mass-kg KG|balance] [--load-changer-coupled]
-[--no-noise]``
+[--no-noise] [--control-crossover-Hz 130 [--control-rate-Hz 10000] [--control-notch-Hz 0]]
+[--load 0:0,2:0.0734829]``
 
 The simulated balance carries ``--load-mass-kg`` on its pan (``balance``: the mass pieces
 that hold the lever at 0 with 0 V on the coil, as ``emfc-experiment`` loads its emulator;
@@ -41,6 +42,7 @@ from emfc_ros.core.device.auth import load_key_file
 from emfc_ros.core.device.emulator import (check_bind_host, DeviceEmulator, Faults,
                                            REFUSED_COUNTERS)
 from emfc_ros.core.device.sim_backend import load_parameters
+from emfc_ros.core.weighing.profiles import parse_load_schedule
 
 PROG = 'emfc-device-emulator'
 
@@ -69,8 +71,8 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument('--control-rate-Hz', type=float, default=10000.0,
                         help='in-loop controller rate [Hz] (the device rate must be a whole '
                              'multiple)')
-    parser.add_argument('--control-notch-Hz', type=float, default=410.0,
-                        help='notch of the in-loop controller [Hz] (0: none)')
+    parser.add_argument('--control-notch-Hz', type=float, default=0.0,
+                        help='notch of the in-loop controller [Hz] (default 0: none)')
     parser.add_argument('--load-mass-kg', default='0',
                         help="mass on the pan [kg], or 'balance': the mass that holds the "
                              'lever at 0 with 0 V on the coil (default 0: empty pan)')
@@ -81,6 +83,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument('--key-file', default='',
                         help='pre-shared key file (hex, mode 600): accept only datagrams '
                              'authenticated with it (HMAC-SHA256), sign every reply and frame')
+    parser.add_argument('--load', default='',
+                        help="mass on the pan over the device's sample clock: "
+                             "'time_s:mass_kg,...' (e.g. 0:0,2:0.0734829), from every start")
     parser.add_argument('--allow-remote', action='store_true',
                         help='permit a non-loopback bind address (exposes the emulator)')
     return parser
@@ -132,6 +137,8 @@ def main(argv: Optional[List[str]] = None) -> int:
                                                  args.load_changer_coupled),
                    'load_changer_coupled': bool(args.load_changer_coupled),
                    'noise': not args.no_noise}
+        if args.load:
+            options['load_schedule'] = parse_load_schedule(args.load)
         if args.control_crossover_Hz > 0.0:
             options['control'] = loop_config({'crossover_Hz': args.control_crossover_Hz,
                                               'rate_Hz': args.control_rate_Hz,

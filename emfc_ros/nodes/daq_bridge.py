@@ -98,6 +98,11 @@ PARAMETERS: Dict[str, Tuple[Any, str]] = {
     'input_scales': (_UNSET_DOUBLES, 'SI value per converter code of each input [unit/code]; '
                                      'unset: the converter default'),
     'input_offsets': (_UNSET_DOUBLES, 'SI value at code 0 of each input [unit]; unset: 0'),
+    'input_noise_rms': (_UNSET_DOUBLES, 'noise at the converter of each input, independent '
+                                        'from sample to sample [unit rms], published with the '
+                                        'code step in the description (extra.resolution) so '
+                                        'that a consumer can budget the quantisation; unset '
+                                        'or 0: unknown, no dither assumed'),
     'outputs': (list(DEFAULT_OUTPUTS), 'actuator output names: coil, load changer'),
     'output_min_V': ([-10.0, -10.0], 'lower limit of each output [V]; setpoints are clamped'),
     'output_max_V': ([10.0, 10.0], 'upper limit of each output [V]; setpoints are clamped'),
@@ -526,6 +531,17 @@ class DaqBridgeNode(Node):
                                                f'got {rate}')
         self._specs = self._generator_specs(config) if mode == 'function_generator' else \
             [GeneratorSpec()] * len(config.outputs)
+        noise = self._param('input_noise_rms')
+        noise = [0.0] * len(config.inputs) if noise is None else [float(v) for v in noise]
+        if len(noise) != len(config.inputs) or not all(
+                math.isfinite(v) and v >= 0.0 for v in noise):
+            raise ConfigError('input_noise_rms', f'need {len(config.inputs)} values >= 0 (one '
+                                                 f'per input), got {noise}')
+        self._resolution = {c.name: {'step': abs(float(c.scale)), 'noise_rms': v}
+                            for c, v in zip(config.inputs, noise)}
+        if name == 'replay':
+            # the recorded values are not codes: what the recording said, or nothing
+            self._resolution = backend.recorded_resolution
         self._backend = backend
         self._config = config
         self._mode = mode
@@ -1233,7 +1249,8 @@ class DaqBridgeNode(Node):
                  'excitation_offset_samples': self._offset,
                  'outputs': [{'name': c.name, 'min_V': c.min_V, 'max_V': c.max_V,
                               'safe_V': c.safe_V} for c in cfg.outputs],
-                 'faults': [f.to_dict() for f in self._monitor.faults]}
+                 'faults': [f.to_dict() for f in self._monitor.faults],
+                 'resolution': self._resolution}
         extra.update(self._pan)
         if getattr(self._backend, 'name', '') == 'replay':
             extra['replay_bag'] = self._backend.bag

@@ -9,7 +9,10 @@ Topics (relative to the node namespace):
 - ``measurements`` (out): every simulated channel in one block stream, on the excitation's
   sample clock when owning time; ``measurements/position``, ``measurements/current`` and
   ``measurements/force`` (out): the same samples grouped as named streams. Each has a
-  latched ``<topic>/description``.
+  latched ``<topic>/description``; its ``extra`` states each channel's quantisation step and
+  input noise (``resolution``), the load on the pan (``load_mass_kg``) and every run-time
+  change with the sample it took effect at (``load_changes``; parameter ``load_mass_kg`` or
+  ``load_schedule``).
 - ``joint_states`` (``sensor_msgs/JointState``, out): joint ``lever``: position [m],
   velocity [m/s], effort = coil force [N], at ``state_rate_Hz``.
 - ``joint_commands`` (``sensor_msgs/JointState``, in; ros2_control topic-based hardware) and
@@ -76,8 +79,11 @@ from emfc_ros.core.paths import config_file
 from emfc_ros.core.sim.channels import channel_names, channel_units, MEASURED, REFERENCE
 from emfc_ros.core.sim.closed_loop import ClosedLoopSimulator
 from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V, saturation_counts
+from emfc_ros.core.sim.resolution import simulator_resolution
 from emfc_ros.core.sim.simulator import Simulator
 from emfc_ros.core.sim.state_rate import StateRateLimiter
+from emfc_ros.core.weighing.errors import WeighingError
+from emfc_ros.core.weighing.profiles import parse_load_schedule
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
     node_diagnostics, steady_clock, subscribe_device_inputs, subscribe_excitation)
@@ -95,6 +101,8 @@ GROUPS = {
 }
 JOINT = 'lever'
 STATE_QOS = QoSProfile(depth=1000)
+#: Run-time load changes kept in the measurement description (the latest).
+MAX_LOAD_CHANGES = 100
 
 PARAMETERS = {
     'balance_file': ('', 'balance parameter YAML; empty: the balance.* parameters, or the '
@@ -115,6 +123,10 @@ PARAMETERS = {
     'load_mass_kg': (0.0, 'mass on the pan [kg], 0 to 2; settable at run time'),
     'load_changer_coupled': (False, 'load changer moving mass coupled to the pan; settable at '
                                     'run time'),
+    'load_schedule': ('', "mass on the pan over simulated time: 'time_s:mass_kg,...' (e.g. "
+                          "'0:0,2:0.0734829,5:0'), each applied at the sample of its time "
+                          '(simulated samples since the start) and announced in the '
+                          'measurement description; empty: none; fixed at start-up'),
     'state_rate_Hz': (1000.0, 'rate of joint_states [Hz], 0 disables, at most sample_rate_Hz'),
     'command_timeout_s': (0.1, 'effort command watchdog [s]; the command returns to 0 N after '
                                'this long without a new one; lockstep mode: the current state '
@@ -143,13 +155,17 @@ PARAMETERS = {
                                'coil excitation is then added to the controller output'),
     'control.rate_Hz': (10000.0, 'in-loop controller rate [Hz]; sample_rate_Hz must be a '
                                  'whole multiple'),
-    'control.crossover_Hz': (100.0, 'design crossover of the in-loop controller [Hz]'),
+    'control.crossover_Hz': (130.0, 'design crossover of the in-loop controller [Hz]'),
     'control.phase_margin_deg': (40.0, 'design phase margin [deg]'),
     'control.delay_samples': (1.0, 'controller computation and transport delay [controller '
                                    'samples] (the hold adds half a sample); times the '
                                    'simulator samples per controller sample a whole number '
                                    '>= 1'),
-    'control.notch_Hz': (410.0, 'notch at the lever resonance [Hz]; 0: none'),
+    'control.notch_Hz': (0.0, 'notch centre [Hz]; 0: none (the default: the lever mode, 410 Hz '
+                              'empty, 333 Hz with 200 g, stays phase-stabilised at 10 kHz)'),
+    'control.max_load_kg': (0.2, 'top of the weighing range [kg]: the design is checked '
+                                 '(margins, exact closed-loop poles) at loads from 0 to here and '
+                                 'refused if it fails'),
     'control.position_setpoint_m': (0.0, 'lever-end position the loop holds [m]'),
 }
 CONTROL_PREFIX = 'control.'
@@ -161,7 +177,7 @@ LIMITS = {'block_size': (1, 1_000_000), 'seed': (0, 2 ** 63 - 1), 'substeps': (0
 #: Parameters fixed at start-up (``state_rate_Hz`` too in lockstep mode: refused then).
 READ_ONLY = ('sample_rate_Hz', 'block_size', 'time_mode', 'seed', 'noise', 'quantisation',
              'substeps', 'hold', 'publish_groups', 'command_delay_periods', 'lockstep_match',
-             'min_subscribers', 'max_state_wall_rate_Hz') + \
+             'min_subscribers', 'max_state_wall_rate_Hz', 'load_schedule') + \
     tuple(n for n in PARAMETERS if n.startswith(CONTROL_PREFIX))
 #: Shown in the start-up log line (with every parameter set to a non-default value).
 STARTUP_KEYS = ('time_mode', 'sample_rate_Hz', 'load_mass_kg', 'balance_file',
@@ -249,6 +265,12 @@ class PlantSimulatorNode(Node):
         self._bad_commands = 0
         self._lock = _Lockstep()
         self._states = self._state_limiter()
+        self._load_kg = float(self._param('load_mass_kg'))
+        self._coupled = bool(self._param('load_changer_coupled'))
+        self._load_changes: List[list] = []      # [stream sample index, load [kg]] as applied
+        self._schedule = self._load_schedule()
+        self._next_first_index = 0               # index the next simulated sample will carry
+        self._applying_schedule = False
         if self._mode not in TIME_MODES:
             self._fail(f'time_mode must be one of {list(TIME_MODES)}, got {self._mode!r}')
         elif self._mode == 'lockstep':
@@ -302,6 +324,15 @@ class PlantSimulatorNode(Node):
                               clock=RosClock(clock_type=ClockType.STEADY_TIME))
         if self._error:
             self._publish_diagnostics()     # the status says why at start, not after 1 s
+
+    def _load_schedule(self) -> list:
+        """The load schedule as ``[(simulated sample, mass [kg])]``, or [] (error reported)."""
+        try:
+            entries = parse_load_schedule(str(self._param('load_schedule')))
+        except WeighingError as exc:
+            self._fail(f'load_schedule refused: {exc}; restart the node with a valid schedule')
+            return []
+        return [(int(round(t * self._rate)), m) for t, m in entries]
 
     def _state_limiter(self) -> StateRateLimiter:
         value = self._param('max_state_wall_rate_Hz')
@@ -405,8 +436,9 @@ class PlantSimulatorNode(Node):
                         noise=bool(self._param('noise')),
                         quantisation=bool(self._param('quantisation')),
                         substeps=substeps or None, hold=str(self._param('hold')),
-                        load_mass_kg=float(self._param('load_mass_kg')),
-                        load_changer_coupled=bool(self._param('load_changer_coupled')))
+                        load_mass_kg=float(getattr(self, '_load_kg', self._param('load_mass_kg'))),
+                        load_changer_coupled=bool(getattr(self, '_coupled',
+                                                          self._param('load_changer_coupled'))))
         flat = {name[len(CONTROL_PREFIX):]: self._param(name) for name in PARAMETERS
                 if name.startswith(CONTROL_PREFIX)}
         try:
@@ -430,7 +462,8 @@ class PlantSimulatorNode(Node):
     def _on_set_parameters(self, params: List[Parameter]) -> SetParametersResult:
         fixed = ('sample_rate_Hz', 'block_size', 'time_mode', 'seed', 'noise',
                  'quantisation', 'substeps', 'hold', 'publish_groups', 'command_delay_periods',
-                 'lockstep_match', 'min_subscribers', 'max_state_wall_rate_Hz') + \
+                 'lockstep_match', 'min_subscribers', 'max_state_wall_rate_Hz',
+                 'load_schedule') + \
             tuple(n for n in PARAMETERS if n.startswith(CONTROL_PREFIX))
         if self._mode == 'lockstep':
             fixed += ('state_rate_Hz',)
@@ -449,6 +482,7 @@ class PlantSimulatorNode(Node):
                 self._lock.hold_V = float(candidate.hold_setpoints_V[0])
             self.get_logger().info('new balance parameters: simulator restarted at its '
                                    'operating point')
+            self._publish_descriptions()
         for p in params:
             if p.name in fixed:
                 return SetParametersResult(
@@ -478,10 +512,11 @@ class PlantSimulatorNode(Node):
                     return SetParametersResult(
                         successful=False, reason='command_timeout_s must be in (0, 60] s, got '
                                                  f'{p.value!r}')
+        if self._applying_schedule:
+            return SetParametersResult(successful=True)     # the schedule applies it itself
         if (load is not None or coupled is not None) and self._sim is not None:
-            self._sim.set_load(
-                load if load is not None else float(self._param('load_mass_kg')),
-                coupled if coupled is not None else bool(self._param('load_changer_coupled')))
+            self._change_load(load if load is not None else self._load_kg,
+                              coupled if coupled is not None else self._coupled)
         return SetParametersResult(successful=True)
 
     # -- streams ---------------------------------------------------------------------------
@@ -491,8 +526,17 @@ class PlantSimulatorNode(Node):
         out = {}
         channels = tuple(Channel(n, u, meanings.get(n, ''))
                          for n, u in zip(self._names, self._units))
-        extra = {'time_mode': self._mode, 'load_mass_kg': float(self._param('load_mass_kg')),
-                 'load_changer_coupled': bool(self._param('load_changer_coupled'))}
+        extra = {'time_mode': self._mode, 'load_mass_kg': self._load_kg,
+                 'load_changer_coupled': self._coupled,
+                 # [stream sample index, load [kg]] of the run-time changes, the latest last
+                 'load_changes': [list(c) for c in self._load_changes]}
+        if self._sim is not None:
+            sim = self._sim.sim if isinstance(self._sim, ClosedLoopSimulator) else self._sim
+            extra['resolution'] = {
+                name: value for name, value in simulator_resolution(
+                    sim.params, sim.noise, sim.quantisation,
+                    getattr(self._sim, 'current_channel', None)).items()
+                if name in self._names}
         out['measurements'] = StreamDescription(
             'measurements', self._rate, 0, channels, epoch=self._epoch,
             source=self.get_fully_qualified_name(), extra=extra)
@@ -526,7 +570,7 @@ class PlantSimulatorNode(Node):
         if command:
             setpoints = setpoints.copy()
             setpoints[0] += command
-        out = self._sim.step_block(setpoints)
+        out = self._step(first_index, setpoints)
         for key, count in saturation_counts(out, self._names, self._sim.params).items():
             self._saturation[key] = self._saturation.get(key, 0) + count
         self._last_position_m = float(out[self._row['position_m'], -1])
@@ -538,6 +582,52 @@ class PlantSimulatorNode(Node):
             self._clocks_out += 1
         self._publish_block(first_index, out)
         self._publish_states(out, stamp_ns)
+
+    def _step(self, first_index: int, setpoints: np.ndarray) -> np.ndarray:
+        """Simulate a block, applying the load schedule at its samples."""
+        n = setpoints.shape[1]
+        self._next_first_index = first_index
+        if not self._schedule or self._schedule[0][0] >= self._sim_samples + n:
+            out = self._sim.step_block(setpoints)
+            self._next_first_index = first_index + n
+            return out
+        parts = []
+        pos = 0
+        while pos < n:
+            while self._schedule and self._schedule[0][0] <= self._sim_samples + pos:
+                _, mass = self._schedule.pop(0)
+                self._next_first_index = first_index + pos
+                self._apply_scheduled_load(mass)
+            due = self._schedule[0][0] - self._sim_samples if self._schedule else n
+            end = min(n, max(due, pos + 1))
+            parts.append(self._sim.step_block(setpoints[:, pos:end]))
+            pos = end
+        self._next_first_index = first_index + n
+        return np.concatenate(parts, axis=1)
+
+    def _apply_scheduled_load(self, mass_kg: float) -> None:
+        """A load of the schedule: the parameter follows, the description announces it."""
+        self._applying_schedule = True
+        try:
+            self.set_parameters([Parameter('load_mass_kg', value=float(mass_kg))])
+        finally:
+            self._applying_schedule = False
+        self._change_load(float(mass_kg), self._coupled)
+        self.get_logger().info(f'load schedule: {mass_kg!r} kg on the pan from sample '
+                               f'{self._next_first_index} ({self._sim_samples / self._rate:g} s '
+                               'simulated)')
+
+    def _change_load(self, mass_kg: float, coupled: bool) -> None:
+        """Put a load on the pan from the next simulated sample; announce it."""
+        if self._sim is None:
+            return
+        self._sim.set_load(mass_kg, coupled)
+        self._load_kg, self._coupled = mass_kg, coupled
+        index = self._lock.index if self._mode == 'lockstep' else (
+            self._wall_index if self._mode == 'wall' else self._next_first_index)
+        self._load_changes.append([int(index), float(mass_kg)])
+        del self._load_changes[:-MAX_LOAD_CHANGES]
+        self._publish_descriptions()
 
     def _sim_time_ns(self) -> int:
         return int(round(self._sim_samples * 1e9 / self._rate))
@@ -686,7 +776,7 @@ class PlantSimulatorNode(Node):
         else:
             setpoints, real = np.zeros((2, n)), 0
         setpoints[0] += lock.coil_V
-        out = self._sim.step_block(setpoints)
+        out = self._step(lock.index, setpoints)
         for key, count in saturation_counts(out, self._names, self._sim.params).items():
             self._saturation[key] = self._saturation.get(key, 0) + count
         self._last_position_m = float(out[self._row['position_m'], -1])

@@ -10,20 +10,25 @@ Topics (relative to the node namespace):
   [m] give the compensation force ``k(y) I`` [N].
 - ``measurements/description`` (``std_msgs/String``, in, latched): names the channels.
 - ``~/reading`` (``diagnostic_msgs/DiagnosticArray``, out): one stamped reading per reading
-  period; one ``DiagnosticStatus`` named ``mass`` (level OK stable, WARN unstable, ERROR no
-  valid data) with the values ``mass_kg``, ``standard_uncertainty_kg``, ``stable``, ``unit``,
-  ``averaging_time_s``, ``n_samples``, ``sample_index``, ``epoch``, ``gross_mass_kg``,
-  ``tare_kg``. The stamp is the time of the reading's last sample on the measurement sample
-  clock: ``start_time_ns`` of the description plus ``sample_index / sample_rate_Hz``.
-- ``~/mass_kg`` (``std_msgs/Float64``, out): the net mass of every reading [kg], for plots.
-- ``~/dynamic_mass_kg`` (``std_msgs/Float64``, out, when ``dynamic``): per block, the
-  dynamic (Kalman) estimate at the block's last sample [kg].
+  period, released one reading period after its last sample (the look-ahead); one
+  ``DiagnosticStatus`` named ``mass`` (level OK stable, WARN unstable or uncalibrated, ERROR
+  no valid data) with the values ``mass_kg``, ``standard_uncertainty_kg``, ``stable``,
+  ``steady``, ``calibrated``, ``unit``, ``averaging_time_s``, ``n_samples``,
+  ``sample_index``, ``epoch``, ``gross_mass_kg``, ``tare_kg``, ``resolution_u_kg``,
+  ``motion_u_kg``. The stamp is the time of the reading's last sample on the measurement
+  sample clock: ``start_time_ns`` of the description plus ``sample_index / sample_rate_Hz``.
+- ``~/dynamic`` (``diagnostic_msgs/DiagnosticArray``, out, when ``dynamic``): the dynamic
+  (Kalman) estimate every ``dynamic_period_s`` of the sample clock, stamped the same way;
+  one status named ``dynamic_mass`` (OK settled, WARN not) with ``mass_kg``,
+  ``standard_uncertainty_kg``, ``settled``, ``calibrated``, ``unit``, ``sample_index``,
+  ``epoch``, ``changes``, ``settle_threshold_kg``.
 - ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``, out, 1 Hz).
 
 Services (``std_srvs/Trigger``, private): ``~/zero`` (empty pan), ``~/tare`` (container on
-the pan), ``~/adjust`` (reference weight of ``reference_mass_kg`` on the zeroed pan),
+the zeroed pan), ``~/adjust`` (reference weight of ``reference_mass_kg`` on the zeroed pan),
 ``~/clear_tare``. Zero, tare and adjust use the latest reading's mean force and refuse when
-there is no recent reading, its window is not full or it is not stable.
+there is no recent reading, its window is not full or it is not steady (tare and adjust
+also before the first zero).
 """
 
 from __future__ import annotations
@@ -39,15 +44,16 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
-from std_msgs.msg import Float64, Float64MultiArray, String
+from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
 from emfc_ros.core.blocks import Continuity, SequenceTracker, StreamDescription
 from emfc_ros.core.errors import BlockError
 from emfc_ros.core.model.parameters import BalanceParameters
 from emfc_ros.core.paths import config_file
-from emfc_ros.core.weighing import (compensation_force_N, DynamicWeigher, Reading,
-                                    ReadingFilter, WeighingCalibration, WeighingError)
+from emfc_ros.core.weighing import DynamicWeigher, Reading, WeighingCalibration, WeighingError
+from emfc_ros.core.weighing.pipeline import DynamicReading, WeighingPipeline
+from emfc_ros.core.weighing.resolution import channel_resolution
 from emfc_ros.nodes.convert import (BLOCK_QOS, diagnostic_status, LATCHED_QOS, msg_to_block,
                                     msg_to_description, node_diagnostics, steady_clock)
 from emfc_ros.nodes.params import declare_table, refuse_unknown
@@ -56,6 +62,8 @@ from emfc_ros.nodes.spin import node_main
 DEFAULT_BALANCE = 'balance_default.yaml'
 #: Readings come in bursts when the stream runs faster than real time (simulation).
 READING_QOS = QoSProfile(depth=100)
+#: Dynamic readings (100 per simulated second by default) come in larger bursts.
+DYNAMIC_QOS = QoSProfile(depth=1000)
 #: Seconds between repeated log lines about bad input.
 LOG_THROTTLE_S = 2.0
 
@@ -71,22 +79,37 @@ PARAMETERS = {
                          'empty: the shipped config/balance_default.yaml', True),
     'averaging_time_s': (1.0, 'moving-average window of a reading [s]', True),
     'reading_period_s': (0.1, 'interval between readings [s] (on the sample clock)', True),
-    'stability_time_s': (0.5, 'readings of this last span must agree for a stable reading [s]',
-                         True),
-    'stability_threshold_kg': (1.0e-6, 'largest spread of the readings over stability_time_s '
-                                       'for a stable reading [kg]', True),
+    'stability_time_s': (0.5, 'without the dynamic estimator: readings of this last span must '
+                              'agree for a stable reading [s]', True),
+    'stability_threshold_kg': (1.0e-6, 'largest spread of the dynamic estimate over a '
+                                       "reading's window and the next reading period for a "
+                                       'stable reading [kg] (without the dynamic estimator: '
+                                       'of the readings over stability_time_s)', True),
     'stale_timeout_s': (2.0, 'wall time without a valid reading after which the reading is '
                              'reported as no valid data and calibration requests are refused '
                              '[s]', True),
-    'dynamic': (True, 'run the dynamic (Kalman) estimator and publish ~/dynamic_mass_kg', True),
-    'dynamic_position_noise_m_rms': (2.0e-9, 'dynamic estimator: position noise per sample '
-                                             '[m rms]', True),
-    'dynamic_force_random_walk_N_per_sqrt_s': (1.0e-5, 'dynamic estimator: random-walk '
+    'dynamic': (True, 'run the dynamic (Kalman) estimator and publish ~/dynamic', True),
+    'dynamic_position_noise_m_rms': (0.0, 'dynamic estimator: position noise per sample '
+                                          '[m rms]; 0: from the stream description '
+                                          '(extra.resolution of the position channel: '
+                                          'sqrt(noise_rms^2 + step^2 / 12))', True),
+    'dynamic_force_random_walk_N_per_sqrt_s': (1.0e-6, 'dynamic estimator: random-walk '
                                                        'intensity of the pan force '
                                                        '[N/sqrt(s)]', True),
+    'dynamic_period_s': (0.01, 'interval of the dynamic readings on the sample clock [s]',
+                         True),
+    'settle_threshold_kg': (1.0e-6, 'the dynamic estimate is settled when it will not move by '
+                                    'more than this [kg]', True),
+    'current_resolution_A': (0.0, 'quantisation step of the current channel [A]; 0: from the '
+                                  'stream description (extra.resolution); neither: weighing '
+                                  'refused', True),
+    'current_noise_A_rms': (0.0, 'noise at the current converter input [A rms] with '
+                                 'current_resolution_A (0: unknown, no dither assumed)', True),
     'sensitivity_kg_per_N': (0.0, 'initial sensitivity [kg/N]; 0: nominal from the lever '
                                   'geometry (negative for this balance)', True),
-    'zero_force_N': (0.0, 'initial compensation force of the empty pan [N]', True),
+    'zero_force_N': (0.0, 'initial compensation force of the empty pan [N]; non-zero: a stored '
+                          'zero, the balance counts as zeroed (readings can be stable before '
+                          '~/zero)', True),
     'reference_mass_kg': (0.0, 'mass of the reference weight on the pan for ~/adjust [kg], '
                                '> 0; may be changed at any time', False),
     'reference_mass_u_kg': (0.0, 'standard uncertainty of the reference mass [kg], >= 0', False),
@@ -126,22 +149,22 @@ class WeighingNode(Node):
         refused = declare_table(self, PARAMETERS, LIMITS)
         refused += refuse_unknown(self)
         self._config_error = ''   # configuration (balance, parameters): nothing works
-        self._stream_error = ''   # description without the channels: blocks are ignored
+        self._stream_error = ''   # description without what weighing needs: blocks ignored
         self._last_error = ''     # the latest problem of any kind, for the diagnostics
         self._description: Optional[StreamDescription] = None
         self._rows: Optional[tuple] = None
-        self._filter: Optional[ReadingFilter] = None
-        self._weigher: Optional[DynamicWeigher] = None
+        self._pipeline: Optional[WeighingPipeline] = None
+        self._pipeline_key = None
         self._calibration: Optional[WeighingCalibration] = None
+        self._calibrated = False
         self._tracker = SequenceTracker()
-        self._next_valid_index: Optional[int] = None
         self._last_reading: Optional[Reading] = None
         self._last_reading_wall = -math.inf
-        self._last_dynamic_kg = math.nan
-        self._last_pan_N: Optional[float] = None
+        self._last_dynamic: Optional[DynamicReading] = None
+        self._epoch = 0
         self._counts = {'blocks_received': 0, 'bad_blocks': 0, 'ignored_blocks': 0,
                         'dropped_blocks': 0, 'bad_descriptions': 0, 'readings': 0,
-                        'calibration_changes': 0}
+                        'dynamic_readings': 0, 'calibration_changes': 0}
         self._params = None
         self._motor = None
         try:
@@ -156,8 +179,7 @@ class WeighingNode(Node):
 
         topic = str(self._param('measurements_topic'))
         self._pub_reading = self.create_publisher(DiagnosticArray, '~/reading', READING_QOS)
-        self._pub_mass = self.create_publisher(Float64, '~/mass_kg', READING_QOS)
-        self._pub_dynamic = (self.create_publisher(Float64, '~/dynamic_mass_kg', READING_QOS)
+        self._pub_dynamic = (self.create_publisher(DiagnosticArray, '~/dynamic', DYNAMIC_QOS)
                              if self._param('dynamic') else None)
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_subscription(Float64MultiArray, topic, self._on_block, BLOCK_QOS)
@@ -181,40 +203,74 @@ class WeighingNode(Node):
                                                    else config_file(DEFAULT_BALANCE))
         self._motor = tuple(self._params.motor.coeffs_N_per_A_per_mm_pow)
         for name in ('averaging_time_s', 'reading_period_s', 'stability_threshold_kg',
-                     'stale_timeout_s', 'dynamic_position_noise_m_rms',
-                     'dynamic_force_random_walk_N_per_sqrt_s'):
+                     'stale_timeout_s', 'dynamic_force_random_walk_N_per_sqrt_s',
+                     'dynamic_period_s', 'settle_threshold_kg'):
             value = float(self._param(name))
             if not (math.isfinite(value) and value > 0.0):
                 raise WeighingError(f'{name} must be finite and > 0, got {value!r}')
+        for name in ('dynamic_position_noise_m_rms', 'current_resolution_A',
+                     'current_noise_A_rms'):
+            value = float(self._param(name))
+            if not (math.isfinite(value) and value >= 0.0):
+                raise WeighingError(f'{name} must be finite and >= 0, got {value!r}')
         sensitivity = float(self._param('sensitivity_kg_per_N'))
         zero = float(self._param('zero_force_N'))
         if sensitivity == 0.0:
             self._calibration = WeighingCalibration.nominal(self._params.mechanics, zero)
         else:
             self._calibration = WeighingCalibration(sensitivity, zero)
-        self._log_calibration('initial calibration')
+        self._calibrated = zero != 0.0
+        self._log_calibration('initial calibration' + ('' if self._calibrated else
+                                                       ' (not zeroed: readings are '
+                                                       'uncalibrated until ~/zero)'))
         if self._param('dynamic'):
-            # Compile (or load) the estimator's kernel now, not on the first block.
+            # Compile (or load) the estimator's kernels now, not on the first block.
             DynamicWeigher(self._params.mechanics, 10000.0).update_block(np.zeros(1),
                                                                          np.zeros(1))
 
-    def _build_filters(self, sample_rate_Hz: float) -> None:
-        """(Re)build the reading filter and the dynamic estimator for a sample rate."""
-        self._filter = ReadingFilter(
-            sample_rate_Hz, self._calibration,
+    def _stream_needs(self, description: StreamDescription):
+        """``(current (step, noise) [A], position noise [m])`` for a description, or a reason."""
+        current_name = str(self._param('current_channel'))
+        position_name = str(self._param('position_channel'))
+        step = float(self._param('current_resolution_A'))
+        if step > 0.0:
+            current = (step, float(self._param('current_noise_A_rms')))
+        else:
+            current = channel_resolution(description.extra, current_name)
+            if current is None:
+                return (f'the resolution of {current_name!r} is unknown (the description of '
+                        f'{description.stream!r} has no extra.resolution.{current_name}): '
+                        'set current_resolution_A [A] (and current_noise_A_rms) so that the '
+                        'uncertainty can include it')
+        noise = float(self._param('dynamic_position_noise_m_rms'))
+        if self._param('dynamic') and noise == 0.0:
+            position = channel_resolution(description.extra, position_name)
+            if position is None:
+                return (f'the noise of {position_name!r} is unknown (the description of '
+                        f'{description.stream!r} has no extra.resolution.{position_name}): '
+                        'set dynamic_position_noise_m_rms [m], or dynamic:=false')
+            noise = math.hypot(position[1], position[0] / math.sqrt(12.0))
+            if noise == 0.0:
+                return (f'{position_name!r} has neither noise nor quantisation: the dynamic '
+                        'estimator needs dynamic_position_noise_m_rms > 0 [m]')
+        return current, noise
+
+    def _build_pipeline(self, sample_rate_Hz: float, current, position_noise: float) -> None:
+        """(Re)build the weighing pipeline; the calibration is kept."""
+        self._pipeline = WeighingPipeline(
+            self._params.mechanics, self._motor, sample_rate_Hz, self._calibration,
+            calibrated=self._calibrated,
             averaging_time_s=float(self._param('averaging_time_s')),
             reading_period_s=float(self._param('reading_period_s')),
             stability_time_s=float(self._param('stability_time_s')),
-            stability_threshold_kg=float(self._param('stability_threshold_kg')))
-        self._weigher = None
-        if self._param('dynamic'):
-            self._weigher = DynamicWeigher(
-                self._params.mechanics, sample_rate_Hz,
-                position_noise_m_rms=float(self._param('dynamic_position_noise_m_rms')),
-                force_random_walk_N_per_sqrt_s=float(
-                    self._param('dynamic_force_random_walk_N_per_sqrt_s')))
-        self._next_valid_index = None
-        self._last_pan_N = None
+            stability_threshold_kg=float(self._param('stability_threshold_kg')),
+            dynamic=bool(self._param('dynamic')),
+            position_noise_m_rms=position_noise or 2.0e-9,
+            force_random_walk_N_per_sqrt_s=float(
+                self._param('dynamic_force_random_walk_N_per_sqrt_s')),
+            dynamic_period_s=float(self._param('dynamic_period_s')),
+            settle_threshold_kg=float(self._param('settle_threshold_kg')),
+            current_resolution=current)
         self._last_reading = None
 
     # -- input -----------------------------------------------------------------------------
@@ -231,40 +287,45 @@ class WeighingNode(Node):
         names = description.channel_names
         wanted = (str(self._param('current_channel')), str(self._param('position_channel')))
         missing = [name for name in wanted if name not in names]
-        if missing:
+        try:
+            needs = self._stream_needs(description) if not missing else None
+        except WeighingError as exc:
+            needs = f'malformed extra.resolution in the description: {exc}'
+        if missing or isinstance(needs, str):
             self._rows = None
             self._last_reading = None
-            self._stream_error = (f'the description of {description.stream!r} has no channel '
-                                  f'{", ".join(repr(m) for m in missing)} (channels: '
-                                  f'{", ".join(names)}); set current_channel / '
-                                  'position_channel or fix the stream')
+            self._stream_error = needs if not missing else (
+                f'the description of {description.stream!r} has no channel '
+                f'{", ".join(repr(m) for m in missing)} (channels: {", ".join(names)}); set '
+                'current_channel / position_channel or fix the stream')
             self._last_error = self._stream_error
             self.get_logger().error(self._stream_error)
             self._publish_error_reading(self._stream_error)
             return
-        rate_changed = (self._description is None
-                        or description.sample_rate_Hz != self._description.sample_rate_Hz
-                        or self._filter is None)
+        key = (description.sample_rate_Hz, needs)
         self._description = description
         self._rows = tuple(names.index(name) for name in wanted)
-        if rate_changed:
+        if key != self._pipeline_key or self._pipeline is None:
             try:
-                self._build_filters(description.sample_rate_Hz)
+                self._build_pipeline(description.sample_rate_Hz, *needs)
             except (ValueError, np.linalg.LinAlgError) as exc:
                 self._rows = None
-                self._filter = self._weigher = None
+                self._pipeline = None
                 self._stream_error = (f'cannot weigh at {description.sample_rate_Hz} Hz: '
                                       f'{exc}')
                 self._last_error = self._stream_error
                 self.get_logger().error(self._stream_error)
                 self._publish_error_reading(self._stream_error)
                 return
+            self._pipeline_key = key
         if self._stream_error:
             self.get_logger().info('measurement description now complete: weighing again')
         self._stream_error = ''
         self.get_logger().info(
             f'weighing {wanted[0]!r} [A] and {wanted[1]!r} [m] of {description.stream!r} at '
-            f'{description.sample_rate_Hz} Hz (epoch {description.epoch})')
+            f'{description.sample_rate_Hz} Hz (epoch {description.epoch}; current resolution '
+            f'{needs[0][0]:.3g} A, noise {needs[0][1]:.3g} A rms; position noise '
+            f'{needs[1]:.3g} m rms)')
 
     def _bad_input(self, text: str) -> None:
         self._last_error = text
@@ -304,21 +365,14 @@ class WeighingNode(Node):
             self._bad_input(f'measurement block at sample {block.first_sample_index} holds '
                             'non-finite current or position: dropped (the window restarts)')
             return
-        force = compensation_force_N(current, position, self._motor)
-        first = block.first_sample_index
-        continuous = first == self._next_valid_index
-        self._next_valid_index = block.end_index
-        readings = self._filter.push(force, first)   # a discontinuity resets its window
-        if self._weigher is not None:
-            if not continuous and self._last_pan_N is not None:
-                # samples are missing: restart from rest with the last pan-force estimate
-                self._weigher.reset(self._last_pan_N)
-            pan = self._weigher.update_block(position, force)
-            self._last_pan_N = float(pan[-1])
-            self._last_dynamic_kg = float(self._weigher.mass_kg(pan[-1], self._calibration))
-            self._pub_dynamic.publish(Float64(data=self._last_dynamic_kg))
+        # a discontinuity (lost block, new epoch) restarts the window and the estimator; what
+        # waited for the missing samples is released as not stable
+        readings, dynamic = self._pipeline.push(current, position, block.first_sample_index)
+        self._epoch = block.epoch
+        for estimate in dynamic:
+            self._publish_dynamic(estimate)
         for reading in readings:
-            self._publish_reading(reading, block.epoch)
+            self._publish_reading(reading)
 
     # -- output ----------------------------------------------------------------------------
 
@@ -327,31 +381,61 @@ class WeighingNode(Node):
         return int(description.start_time_ns) + int(round(
             sample_index * 1e9 / description.sample_rate_Hz))
 
-    def _publish_reading(self, reading: Reading, epoch: int) -> None:
-        cal = self._calibration
-        level = DiagnosticStatus.OK if reading.stable else DiagnosticStatus.WARN
+    def _publish_reading(self, reading: Reading) -> None:
+        cal = self._pipeline.calibration
+        if reading.stable:
+            level, message = DiagnosticStatus.OK, 'stable'
+        elif not reading.calibrated:
+            level, message = DiagnosticStatus.WARN, 'uncalibrated: zero the balance (~/zero)'
+        else:
+            level, message = DiagnosticStatus.WARN, 'unstable'
         values = {
             'mass_kg': reading.mass_kg,
             'standard_uncertainty_kg': reading.standard_uncertainty_kg,
             'stable': reading.stable,
+            'steady': reading.steady,
+            'calibrated': reading.calibrated,
             'unit': 'kg',
             'averaging_time_s': reading.averaging_time_s,
             'n_samples': reading.n_samples,
             'sample_index': reading.sample_index,
-            'epoch': epoch,
+            'epoch': self._epoch,
             'gross_mass_kg': float(cal.gross_mass_kg(reading.mean_force_N)),
             'tare_kg': cal.tare_kg,
+            'resolution_u_kg': reading.resolution_u_kg,
+            'motion_u_kg': reading.motion_u_kg,
         }
         msg = DiagnosticArray()
         msg.header.stamp = _stamp(self._stamp_ns(reading.sample_index))
-        msg.status = [diagnostic_status('mass', self._description.source, level,
-                                        'stable' if reading.stable else 'unstable',
+        msg.status = [diagnostic_status('mass', self._description.source, level, message,
                                         {k: _value(v) for k, v in values.items()})]
         self._pub_reading.publish(msg)
-        self._pub_mass.publish(Float64(data=reading.mass_kg))
         self._counts['readings'] += 1
         self._last_reading = reading
         self._last_reading_wall = time.monotonic()
+
+    def _publish_dynamic(self, estimate: DynamicReading) -> None:
+        values = {
+            'mass_kg': estimate.mass_kg,
+            'standard_uncertainty_kg': estimate.standard_uncertainty_kg,
+            'settled': estimate.settled,
+            'calibrated': estimate.calibrated,
+            'unit': 'kg',
+            'sample_index': estimate.sample_index,
+            'epoch': self._epoch,
+            'changes': estimate.changes,
+            'settle_threshold_kg': float(self._param('settle_threshold_kg')),
+        }
+        level = DiagnosticStatus.OK if estimate.settled else DiagnosticStatus.WARN
+        message = 'settled' if estimate.settled else (
+            'moving' if estimate.calibrated else 'uncalibrated: zero the balance (~/zero)')
+        msg = DiagnosticArray()
+        msg.header.stamp = _stamp(self._stamp_ns(estimate.sample_index))
+        msg.status = [diagnostic_status('dynamic_mass', self._description.source, level,
+                                        message, {k: _value(v) for k, v in values.items()})]
+        self._pub_dynamic.publish(msg)
+        self._counts['dynamic_readings'] += 1
+        self._last_dynamic = estimate
 
     def _publish_error_reading(self, text: str) -> None:
         msg = DiagnosticArray()
@@ -385,20 +469,23 @@ class WeighingNode(Node):
     def _publish_diagnostics(self, no_data: str) -> None:
         values = dict(self._counts)
         values.update({f'stream_{k}': v for k, v in self._tracker.counters().items()})
-        if self._filter is not None:
-            values['window_resets'] = self._filter.gap_count
-            values['samples_lost'] = self._filter.samples_lost
+        pipeline = self._pipeline
+        if pipeline is not None:
+            values['window_resets'] = pipeline.gap_count
+            values['samples_lost'] = pipeline.samples_lost
+            values['load_changes_detected'] = pipeline.changes
         reading = self._last_reading
         if reading is not None:
             values.update({'mass_kg': _value(reading.mass_kg), 'stable': _value(reading.stable),
                            'sample_index': reading.sample_index})
-        if self._weigher is not None:
-            values['dynamic_mass_kg'] = _value(self._last_dynamic_kg)
+        if self._last_dynamic is not None:
+            values['dynamic_mass_kg'] = _value(self._last_dynamic.mass_kg)
+            values['dynamic_sample_index'] = self._last_dynamic.sample_index
         cal = self._calibration
         if cal is not None:
             values.update({'sensitivity_kg_per_N': _value(cal.sensitivity_kg_per_N),
                            'zero_force_N': _value(cal.zero_force_N),
-                           'tare_kg': _value(cal.tare_kg)})
+                           'tare_kg': _value(cal.tare_kg), 'calibrated': _value(self._calibrated)})
         values['channels'] = f'{self._param("current_channel")}, ' \
                              f'{self._param("position_channel")}'
         values['last_error'] = self._last_error
@@ -408,6 +495,8 @@ class WeighingNode(Node):
             level, message = DiagnosticStatus.WARN, no_data
         elif self._last_error:
             level, message = DiagnosticStatus.WARN, f'weighing; last problem: {self._last_error}'
+        elif not self._calibrated:
+            level, message = DiagnosticStatus.WARN, 'weighing, not zeroed: call ~/zero'
         else:
             level, message = DiagnosticStatus.OK, 'weighing'
         self._pub_diag.publish(node_diagnostics(self, 'weighing', level, message, values))
@@ -422,51 +511,28 @@ class WeighingNode(Node):
         self.get_logger().info(text)
         return text
 
-    def _set_calibration(self, calibration: WeighingCalibration, what: str) -> str:
-        self._calibration = calibration
-        if self._filter is not None:
-            self._filter.calibration = calibration
-        self._counts['calibration_changes'] += 1
-        return self._log_calibration(what)
-
-    def _stable_reading(self, action: str):
-        """The reading to calibrate with, or the reason for refusing (str)."""
+    def _calibrate(self, response: Trigger.Response, action: str, change):
         reason = self._no_data_reason()
         if reason:
-            return f'{action} refused: {reason}'
-        reading = self._last_reading
-        if not reading.window_full:
-            return (f'{action} refused: the averaging window is not full yet '
-                    f'({reading.averaging_time_s:.3g} of {self._param("averaging_time_s")} s); '
-                    'wait for a stable reading')
-        if not reading.stable:
-            return (f'{action} refused: the reading is not stable (spread over the last '
-                    f'{self._param("stability_time_s")} s above '
-                    f'{self._param("stability_threshold_kg")} kg); wait for a stable reading')
-        return reading
-
-    def _calibrate(self, response: Trigger.Response, action: str, change):
-        reading = self._stable_reading(action)
-        if isinstance(reading, str):
-            response.success, response.message = False, reading
+            response.success, response.message = False, f'{action} refused: {reason}'
             return response
         try:
-            new = change(self._calibration, reading)
+            reading = change(self._pipeline)
         except WeighingError as exc:
-            response.success, response.message = False, f'{action} refused: {exc}'
+            response.success, response.message = False, str(exc)
             return response
+        self._calibration = self._pipeline.calibration
+        self._calibrated = self._pipeline.calibrated
+        self._counts['calibration_changes'] += 1
         response.success = True
-        what = f'{action} at sample {reading.sample_index}'
-        response.message = self._set_calibration(new, what)
+        response.message = self._log_calibration(f'{action} at sample {reading.sample_index}')
         return response
 
     def _srv_zero(self, request: Trigger.Request, response: Trigger.Response):
-        return self._calibrate(response, 'zero', lambda cal, r: cal.zeroed(r.mean_force_N,
-                                                                           r.force_u_N))
+        return self._calibrate(response, 'zero', lambda p: p.zero())
 
     def _srv_tare(self, request: Trigger.Request, response: Trigger.Response):
-        return self._calibrate(response, 'tare', lambda cal, r: cal.tared(r.mean_force_N,
-                                                                          r.force_u_N))
+        return self._calibrate(response, 'tare', lambda p: p.tare())
 
     def _srv_adjust(self, request: Trigger.Request, response: Trigger.Response):
         ref = self._param('reference_mass_kg')
@@ -479,17 +545,20 @@ class WeighingNode(Node):
                                 f'{ref!r}')
             return response
         return self._calibrate(response, f'adjust with {float(ref)!r} kg',
-                               lambda cal, r: cal.adjusted(r.mean_force_N, float(ref),
-                                                           r.force_u_N, float(u_ref)))
+                               lambda p: p.adjust(float(ref), float(u_ref)))
 
     def _srv_clear_tare(self, request: Trigger.Request, response: Trigger.Response):
         if self._calibration is None:
             response.success = False
             response.message = f'clear_tare refused: {self._config_error}'
             return response
+        self._calibration = dataclasses.replace(self._calibration, tare_kg=0.0, tare_u_kg=0.0)
+        if self._pipeline is not None:
+            self._pipeline.clear_tare()
+            self._calibration = self._pipeline.calibration
+        self._counts['calibration_changes'] += 1
         response.success = True
-        response.message = self._set_calibration(
-            dataclasses.replace(self._calibration, tare_kg=0.0, tare_u_kg=0.0), 'tare cleared')
+        response.message = self._log_calibration('tare cleared')
         return response
 
     @property

@@ -204,7 +204,7 @@ def test_the_emulated_device_can_run_the_controller_in_its_sample_loop():
     """The sim back-end with a LoopConfig holds 0.1 kg; the precise channel streams."""
     from emfc_ros.core.control.loop_config import LoopConfig
     from emfc_ros.core.device.backend import default_input_channel
-    loop = LoopConfig(rate_Hz=10000.0, crossover_Hz=100.0, notch_Hz=410.0)
+    loop = LoopConfig()          # the default in-loop design (130 Hz, no notch)
     device = SimBackend(seed=2, simulator_options={'control': loop, 'load_mass_kg': 0.1})
     # the precise current through a 16-bit device code: a window around the working point
     precise = default_input_channel('coil_current_precise_A')

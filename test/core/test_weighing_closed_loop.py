@@ -12,8 +12,7 @@ from emfc_ros.core.weighing import (compensation_force_N, DynamicWeigher, settle
                                     WeighingCalibration)
 
 FS_HZ = 20000
-LOOP = LoopConfig(rate_Hz=10000.0, crossover_Hz=100.0, phase_margin_deg=40.0,
-                  delay_samples=1.5, notch_Hz=410.0)
+LOOP = LoopConfig()     # the default in-loop design: 10 kHz, 130 Hz, no notch
 MG = 1.0e-6
 
 

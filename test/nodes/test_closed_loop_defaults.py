@@ -190,12 +190,19 @@ def test_the_documented_closed_loop_lines_run_as_typed(processes, executor, ros_
     docs = _closed_loop_lines(REPO / 'docs' / 'closed_loop.md', '### Try it (the defaults)')
     assert readme == docs and len(docs) == 4
     user = Terminals(processes, executor, ros_context)
+    descriptions = []
+    user.node.create_subscription(String, '/measurements/description',
+                                  lambda m: descriptions.append(msg_to_description(m)),
+                                  LATCHED_QOS)
     for line in docs[:3]:
         user.run(line)
-    echoed = user.echoed['/weighing/mass_kg']
+    echoed = user.echoed['/weighing/reading']
 
     def mass():
-        return [m.data for m in echoed]
+        # the value a user reads in the echoed reading (uncalibrated: nobody zeroed)
+        values = [{kv.key: kv.value for kv in m.status[0].values} for m in echoed
+                  if m.status[0].level != DiagnosticStatus.ERROR]
+        return [float(v['mass_kg']) for v in values]
     # the weighing window (1 s) fills and the reading settles
     assert ros_harness.spin_until(executor, lambda: _settled(mass()) is not None,
                                   START_TIMEOUT_S), [p.output() for p in user.started]
@@ -208,4 +215,9 @@ def test_the_documented_closed_loop_lines_run_as_typed(processes, executor, ros_
     after = _settled(mass())
     # nominal calibration from the geometry: within 0.5 % of the 50 g put on the pan
     assert after - before == pytest.approx(0.05, rel=5e-3), (before, after)
+    # the plant's description says so, with the sample the 50 g came at
+    assert ros_harness.spin_until(executor, lambda: descriptions and descriptions[-1].extra[
+        'load_mass_kg'] == 0.05, TIMEOUT_S)
+    index, kg = descriptions[-1].extra['load_changes'][-1]
+    assert kg == 0.05 and index > 0
     assert all(p.alive() for p in user.started)

@@ -469,6 +469,30 @@ def test_declared_pan_load_reaches_the_measurement_description(executor, ros_con
     assert extra['load_mass_kg'] == 0.1024 and extra['load_changer_coupled'] is True
 
 
+def test_the_description_states_each_input_resolution(executor, ros_context):
+    """Code step from the scaling, noise from input_noise_rms (issue 15: budgets need it)."""
+    bridge = DaqBridgeNode(context=ros_context, parameter_overrides=bridge_params(
+        backend='sim', inputs=['position_m', 'coil_current_A'],
+        input_units=['m', 'A'], input_scales=[6e-9, 3e-6], input_offsets=[0.0, 0.0],
+        input_noise_rms=[2e-9, 0.0]))
+    probe = Probe(ros_context)
+    setup_nodes(executor, bridge, probe.node)
+    assert ros_harness.spin_until(executor, lambda: len(probe.descriptions) >= 1, TIMEOUT_S)
+    extra = msg_to_description(probe.descriptions[-1]).extra
+    assert extra['resolution'] == {'position_m': {'step': 6e-9, 'noise_rms': 2e-9},
+                                   'coil_current_A': {'step': 3e-6, 'noise_rms': 0.0}}
+
+
+def test_a_wrong_input_noise_leaves_a_node_that_says_why(executor, ros_context):
+    bridge = DaqBridgeNode(context=ros_context, parameter_overrides=bridge_params(
+        backend='sim', input_noise_rms=[1e-9]))
+    probe = Probe(ros_context)
+    setup_nodes(executor, bridge, probe.node)
+    assert ros_harness.spin_until(executor, lambda: probe.diag('error') is not None,
+                                  TIMEOUT_S)
+    assert 'input_noise_rms' in probe.diag('error') and probe.diag('state') == 'error'
+
+
 def test_a_wrong_pan_declaration_leaves_a_node_that_says_why(executor, ros_context):
     bridge = DaqBridgeNode(context=ros_context, parameter_overrides=bridge_params(
         backend='sim', **{'pan.load_changer_coupled': 'maybe'}))

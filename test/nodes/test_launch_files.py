@@ -9,7 +9,7 @@ the README, docs/ and each file's docstring show (parsed from them). Every ``Nod
 command line ``ros2 launch`` would run, started here as a separate process, and the job the
 file exists for is checked: the whole default identification trajectory answered through
 the simulator and recorded, the hardware experiment through the device emulator, the
-recorded bag replayed, the signal generator streaming.
+recorded bag replayed, the signal generator streaming, the simulated balance weighing.
 """
 
 import ast
@@ -25,12 +25,13 @@ import numpy as np
 import pytest
 import rclpy
 from std_msgs.msg import Bool, Float64MultiArray, String
+from std_srvs.srv import Trigger
 import yaml
 
 from emfc_ros.core.bag import read_streams
 from emfc_ros.core.config import unflatten
-from emfc_ros.core.signals.spec import load_experiment_file
-from emfc_ros.nodes import daq_bridge, plant_simulator, signal_generator
+from emfc_ros.core.signals.spec import experiment_from_config, load_experiment_file
+from emfc_ros.nodes import daq_bridge, plant_simulator, signal_generator, weighing
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, LATCHED_QOS, msg_to_block, msg_to_description)
 import ros_harness
@@ -41,11 +42,12 @@ PACKAGE = 'emfc_ros'
 #: Every launch file of the package (each has a job test below).
 LAUNCH_FILES = tuple(sorted(p.name for p in (REPO / 'launch').glob('*.launch.py')))
 JOB_TESTED = {'sim_experiment.launch.py', 'hardware_experiment.launch.py',
-              'replay.launch.py', 'signal_generator.launch.py'}
+              'replay.launch.py', 'signal_generator.launch.py', 'weigh.launch.py'}
 #: The declared parameters of each node executable, to check the launch files' types.
 NODE_PARAMETERS = {'signal_generator': signal_generator.PARAMETERS,
                    'plant_simulator': plant_simulator.PARAMETERS,
-                   'daq_bridge': daq_bridge.PARAMETERS}
+                   'daq_bridge': daq_bridge.PARAMETERS,
+                   'weighing': weighing.PARAMETERS}
 #: The first plant start after an install compiles the simulator kernel (12-17 s measured).
 START_TIMEOUT_S = 180.0
 TIMEOUT_S = 60.0
@@ -571,3 +573,61 @@ def test_the_stand_in_is_not_installed():
     result = subprocess.run([sys.executable, '-c', 'import launch_ros'], capture_output=True,
                             text=True, cwd='/', timeout=60)
     assert result.returncode != 0
+
+
+@pytest.mark.slow
+def test_weigh_launch_weighs_the_simulated_balance(stub, tmp_path, processes, executor,
+                                                   ros_context):
+    """The documented line: zero on a steady reading, then the scheduled mass, honestly."""
+    for k, (where, args) in enumerate(documented_lines(stub, 'weigh.launch.py')):
+        launched = evaluate(stub, tmp_path, 'weigh.launch.py', args)
+        schedule = [tuple(float(v) for v in item.split(':')) for item in
+                    launched.context.launch_configurations['load'].split(',') if item]
+        node = rclpy.create_node(f'weigh_observer_{k}', namespace='/emfc', context=ros_context)
+        readings, descriptions = [], []
+        node.create_subscription(DiagnosticArray, 'weighing/reading', lambda m: readings.append(
+            {kv.key: kv.value for kv in m.status[0].values} | {'level': m.status[0].level}),
+            100)
+        node.create_subscription(String, 'measurements/description',
+                                 lambda m: descriptions.append(msg_to_description(m)),
+                                 LATCHED_QOS)
+        zero = node.create_client(Trigger, 'weighing/zero')
+        executor.add_node(node)
+        nodes = start(processes, launched)
+
+        def output():
+            return '\n'.join(f'--- {p.argv[0]}\n{p.output()}' for p in nodes.values())
+
+        def steady():
+            return [r for r in readings if r.get('steady') == 'true']
+        assert ros_harness.spin_until(executor, lambda: steady() and zero.service_is_ready(),
+                                      START_TIMEOUT_S), (where, output())
+        # before the first zero: uncalibrated, never stable
+        assert all(r['stable'] == 'false' and r['calibrated'] == 'false'
+                   for r in readings if r['level'] != DiagnosticStatus.ERROR)
+        future = zero.call_async(Trigger.Request())
+        assert ros_harness.spin_until(executor, future.done, TIMEOUT_S)
+        assert future.result().success, future.result().message
+        last_change = max(t for t, _ in schedule)
+        rate = descriptions[-1].sample_rate_Hz
+
+        def time_of(r):
+            return (int(r['sample_index']) + 1) / rate
+        assert ros_harness.spin_until(
+            executor, lambda: any(r['stable'] == 'true' and time_of(r) > last_change + 1.1
+                                  for r in readings), START_TIMEOUT_S), output()
+        for r in readings:
+            if r['level'] == DiagnosticStatus.ERROR or r['stable'] != 'true':
+                continue
+            true = max((kg for t, kg in schedule if t <= time_of(r)), default=0.0)
+            assert abs(float(r['mass_kg']) - true) <= 2.0 * float(
+                r['standard_uncertainty_kg']), (r, true)
+        # the plant's description announced each change at its sample
+        changes = descriptions[-1].extra['load_changes']
+        for t, kg in schedule:
+            assert [int(round(t * rate)), kg] in changes, changes
+        assert descriptions[-1].extra['load_mass_kg'] == schedule[-1][1]
+        for proc in nodes.values():
+            assert proc.stop() == 0, proc.output()
+        executor.remove_node(node)
+        node.destroy_node()

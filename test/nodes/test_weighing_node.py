@@ -12,7 +12,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
 import rclpy
 from rclpy.parameter import Parameter
-from std_msgs.msg import Float64, Float64MultiArray, String
+from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
 from emfc_ros.core.blocks import Channel, StreamDescription
@@ -20,6 +20,7 @@ from emfc_ros.core.control.loop_config import LoopConfig
 from emfc_ros.core.model.parameters import BalanceParameters
 from emfc_ros.core.paths import config_file
 from emfc_ros.core.sim.closed_loop import ClosedLoopSimulator
+from emfc_ros.core.sim.resolution import simulator_resolution
 from emfc_ros.core.sim.simulator import Simulator
 from emfc_ros.nodes.convert import (BLOCK_QOS, block_to_msg, BlockMessageBuilder,
                                     description_to_msg, LATCHED_QOS)
@@ -29,8 +30,7 @@ import ros_harness
 TIMEOUT_S = 30.0
 RATE_HZ = 20000.0
 BLOCK = 1000
-LOOP = LoopConfig(rate_Hz=10000.0, crossover_Hz=100.0, phase_margin_deg=40.0,
-                  delay_samples=1.5, notch_Hz=410.0)
+LOOP = LoopConfig()     # the default in-loop design: 10 kHz, 130 Hz, no notch
 SOURCE = 'test_closed_loop'
 
 
@@ -41,6 +41,7 @@ class Balance:
         params = BalanceParameters.load_yaml(config_file('balance_default.yaml'))
         self.sim = ClosedLoopSimulator(Simulator(params, RATE_HZ, seed=seed,
                                                  reference_channels=False), LOOP)
+        self.resolution = simulator_resolution(params, current_channel=self.sim.current_channel)
         self.executor = executor
         self.weighing = weighing
         self.node = rclpy.create_node('balance_stream', namespace=namespace, context=context)
@@ -51,15 +52,12 @@ class Balance:
         self.sent = 0
         self.readings = []       # non-error statuses of ~/reading, as dicts
         self.errors = []         # ERROR statuses of ~/reading
-        self.mass = []
-        self.dynamic = []        # (index one past the block, dynamic mass [kg])
+        self.dynamic = []        # statuses of ~/dynamic, as dicts
         self.diagnostics = []
         self.node.create_subscription(DiagnosticArray, 'weighing/reading', self._on_reading,
                                       1000)
-        self.node.create_subscription(Float64, 'weighing/mass_kg',
-                                      lambda m: self.mass.append(m.data), 1000)
-        self.node.create_subscription(Float64, 'weighing/dynamic_mass_kg', self._on_dynamic,
-                                      1000)
+        self.node.create_subscription(DiagnosticArray, 'weighing/dynamic', self._on_dynamic,
+                                      10000)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
                                       100)
         self.clients = {name: self.node.create_client(Trigger, f'weighing/{name}')
@@ -76,12 +74,13 @@ class Balance:
 
     # -- input -------------------------------------------------------------------------------
 
-    def describe(self, drop=()):
+    def describe(self, drop=(), resolution=True):
         channels = tuple(Channel(n, u) for n, u in zip(self.sim.channel_names,
                                                        self.sim.channel_units)
                          if n not in drop)
+        extra = {'resolution': self.resolution} if resolution else {}
         self.pub_desc.publish(description_to_msg(StreamDescription(
-            'measurements', RATE_HZ, BLOCK, channels, source=SOURCE)))
+            'measurements', RATE_HZ, BLOCK, channels, source=SOURCE, extra=extra)))
 
     def send(self, msg):
         self.pub.publish(msg)
@@ -105,20 +104,25 @@ class Balance:
     def settle(self):
         counts = self.weighing._counts
         assert self.spin(lambda: len(self.readings) >= counts['readings']
-                         and len(self.mass) >= counts['readings'])
+                         and len(self.dynamic) >= counts['dynamic_readings'])
 
     # -- output ------------------------------------------------------------------------------
 
-    def _on_reading(self, msg):
-        assert len(msg.status) == 1 and msg.status[0].name == 'mass'
+    @staticmethod
+    def _doc(msg, name):
+        assert len(msg.status) == 1 and msg.status[0].name == name
         status = msg.status[0]
         doc = {kv.key: kv.value for kv in status.values}
         doc.update(level=status.level, message=status.message, hardware_id=status.hardware_id,
                    stamp_ns=msg.header.stamp.sec * 10 ** 9 + msg.header.stamp.nanosec)
-        (self.errors if status.level == DiagnosticStatus.ERROR else self.readings).append(doc)
+        return doc
+
+    def _on_reading(self, msg):
+        doc = self._doc(msg, 'mass')
+        (self.errors if doc['level'] == DiagnosticStatus.ERROR else self.readings).append(doc)
 
     def _on_dynamic(self, msg):
-        self.dynamic.append(msg.data)
+        self.dynamic.append(self._doc(msg, 'dynamic_mass'))
 
     def _on_diagnostics(self, msg):
         for status in msg.status:
@@ -172,11 +176,26 @@ def test_zero_adjust_weigh_and_tare(executor, ros_context):
 
     balance.run(1.5)
     empty = balance.last()
-    assert empty['stable'] == 'true' and empty['level'] == DiagnosticStatus.OK
+    # before the first zero: steady, but uncalibrated and never stable (the nominal
+    # calibration reads the empty pan as about -127 g)
+    assert empty['steady'] == 'true' and empty['calibrated'] == 'false'
+    assert empty['stable'] == 'false' and empty['level'] == DiagnosticStatus.WARN
+    assert empty['message'].startswith('uncalibrated'), empty['message']
+    assert -0.13 < mass(empty) < -0.12
+    assert all(r['stable'] == 'false' for r in balance.readings)
+    assert balance.dynamic and all(d['settled'] == 'false' and d['calibrated'] == 'false'
+                                   for d in balance.dynamic)
+    for action in ('tare', 'adjust'):
+        assert weighing.set_parameters([Parameter('reference_mass_kg', value=0.1)])[0] \
+            .successful
+        refused = balance.call(action)
+        assert not refused.success and 'not zeroed' in refused.message, refused.message
+    assert weighing.set_parameters([Parameter('reference_mass_kg', value=0.0)])[0].successful
     answer = balance.call('zero')
     assert answer.success, answer.message
     balance.run(0.2)
     assert abs(mass(balance.last())) < 1e-6
+    assert balance.last()['stable'] == 'true' and balance.last()['calibrated'] == 'true'
 
     refused = balance.call('adjust')
     assert not refused.success and 'reference_mass_kg' in refused.message, refused.message
@@ -206,8 +225,19 @@ def test_zero_adjust_weigh_and_tare(executor, ros_context):
     after = readings_after(balance, step)
     assert after and all(r['stable'] == 'false' for r in after)
     # The dynamic estimate is there long before the moving average (docs/weighing.md 5).
-    assert abs(balance.dynamic[-1] - 0.05) < 1e-6, balance.dynamic[-1]
+    assert abs(mass(balance.dynamic[-1]) - 0.05) < 1e-6, balance.dynamic[-1]
     assert abs(mass(balance.last()) - 0.05) > 1e-6
+    # every dynamic reading is placed on the sample clock: every 0.01 s (200 samples),
+    # stamped with its sample; not settled right after the step, settled once there
+    dynamic = [d for d in balance.dynamic if int(d['sample_index']) >= step]
+    for d in dynamic:
+        index = int(d['sample_index'])
+        assert (index + 1) % 200 == 0 and d['stamp_ns'] == index * 50_000
+    assert dynamic[0]['settled'] == 'false' and dynamic[0]['level'] == DiagnosticStatus.WARN
+    assert dynamic[-1]['settled'] == 'true' and dynamic[-1]['level'] == DiagnosticStatus.OK
+    settled = [d for d in dynamic if d['settled'] == 'true']
+    assert all(abs(mass(d) - 0.05) < 1e-6 for d in settled)
+    assert all(0.0 < float(d['standard_uncertainty_kg']) < 1e-6 for d in settled)
 
     balance.run(1.5)
     reading = balance.last()
@@ -222,8 +252,9 @@ def test_zero_adjust_weigh_and_tare(executor, ros_context):
     index = int(reading['sample_index'])
     assert (index + 1) % 2000 == 0
     assert reading['stamp_ns'] == index * 50_000
-    assert balance.mass[-1] == mass(reading)
-    assert abs(balance.dynamic[-1] - 0.05) < 1e-6
+    assert abs(mass(balance.dynamic[-1]) - 0.05) < 1e-6
+    # released one reading period after its last sample: the next dynamic readings are in
+    assert int(balance.dynamic[-1]['sample_index']) > index
 
     answer = balance.call('tare')
     assert answer.success, answer.message
@@ -269,9 +300,19 @@ def test_bad_input_missing_channel_and_recovery(executor, ros_context):
     assert int(values['stream_gaps']) == 2 and int(values['window_resets']) == 1
     assert 'non-finite' in values['last_error']
 
+    # A description without the current channel's resolution: weighing is refused, saying
+    # what to set (a reading without it could be confidently wrong).
+    seen = len(balance.errors)
+    balance.describe(resolution=False)
+    assert balance.spin(lambda: len(balance.errors) > seen)
+    text = balance.errors[-1]['message']
+    assert "resolution of 'coil_current_precise_A' is unknown" in text, text
+    assert 'current_resolution_A' in text
+
     # A description without the current channel: reported, blocks ignored, no crash.
+    seen = len(balance.errors)
     balance.describe(drop=('coil_current_precise_A',))
-    assert balance.spin(lambda: balance.errors)
+    assert balance.spin(lambda: len(balance.errors) > seen)
     assert 'coil_current_precise_A' in balance.errors[-1]['message']
     level, message, _ = balance.wait_diagnostic(lambda d: d[0] == DiagnosticStatus.ERROR)
     assert 'coil_current_precise_A' in message

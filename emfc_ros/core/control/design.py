@@ -150,11 +150,17 @@ class ControllerDesign:
     requested_phase_margin_deg : float
         Phase margin asked for [deg].
     crossover_Hz : float
-        Highest gain crossover ``|L| = 1`` found on the grid [Hz].
+        Lowest gain crossover ``|L| = 1`` found on the grid [Hz]: the loop's bandwidth (a
+        phase-stabilised mode above it adds crossovers of its own).
     gain_crossovers_Hz : tuple of float
         All gain crossovers [Hz], ascending.
     phase_margin_deg : float
-        Smallest phase margin over all gain crossovers [deg].
+        The phase margin closest to 0 over all gain crossovers [deg], in (-180, 180]: its
+        magnitude is the smallest angular distance of ``L`` from -1 where ``|L| = 1`` (a
+        phase-stabilised mode has ``L`` near +1 there, a margin near +/-180 deg).
+    phase_margins_deg : tuple of float
+        The phase margin at each gain crossover [deg], in the order of
+        ``gain_crossovers_Hz``.
     lower_gain_margin : float or None
         Largest gain factor below 1 at which the loop loses stability (conditional
         stability); None if no such crossing of the negative real axis.
@@ -179,6 +185,7 @@ class ControllerDesign:
     crossover_Hz: float
     gain_crossovers_Hz: Tuple[float, ...]
     phase_margin_deg: float
+    phase_margins_deg: Tuple[float, ...]
     lower_gain_margin: Optional[float]
     upper_gain_margin: Optional[float]
     phase_crossovers_Hz: Tuple[float, ...]
@@ -498,9 +505,10 @@ def analyse_loop(controller: DiscreteController, plant_frequency_response: Plant
         controller=controller, delay_samples=float(delay_samples),
         requested_crossover_Hz=float(requested_crossover_Hz),
         requested_phase_margin_deg=float(requested_phase_margin_deg),
-        crossover_Hz=float(max(gain_x)) if gain_x else float('nan'),
+        crossover_Hz=float(min(gain_x)) if gain_x else float('nan'),
         gain_crossovers_Hz=tuple(float(x) for x in gain_x),
-        phase_margin_deg=float(min(margins)) if margins else float('inf'),
+        phase_margin_deg=float(min(margins, key=abs)) if margins else float('inf'),
+        phase_margins_deg=tuple(float(m) for m in margins),
         lower_gain_margin=float(max(lower)) if lower else None,
         upper_gain_margin=float(min(upper)) if upper else None,
         phase_crossovers_Hz=tuple(float(x) for x in phase_x),

@@ -122,6 +122,9 @@ class ReplayBackend:
             tuple(InputChannel(n, u or '1', 1.0) for n, u in
                   zip(self.channel_names, self.channel_units)),
             (OutputChannel('coil_V'), OutputChannel('load_changer_V')))
+        #: The recorded description's ``extra.resolution`` (empty when it has none).
+        self.recorded_resolution = dict(first.description.extra.get('resolution') or {}) \
+            if first.description is not None else {}
         self.config: Optional[DeviceConfig] = None
         self.epoch = 0
         self._running = False

@@ -77,7 +77,9 @@ class SimulatedDevice:
         ``control``: a :class:`~emfc_ros.core.control.loop_config.LoopConfig` that runs the
         position controller inside the device's sample loop (channels
         ``coil_current_precise_A`` and ``force_command_N`` join the catalogue; the outputs'
-        coil setpoint is then added to the controller's).
+        coil setpoint is then added to the controller's), and ``load_schedule``: ``(time_s,
+        mass_kg)`` pairs, the mass on the pan from that time of the device's sample clock on
+        (from every START), applied at the exact sample (``load_changes`` records them).
     """
 
     def __init__(self, params: Any = None, seed: int = 0, *, max_inputs: int = MAX_CHANNELS,
@@ -87,6 +89,11 @@ class SimulatedDevice:
         self.seed = int(seed)
         self.max_inputs = int(max_inputs)
         self.simulator_options = dict(simulator_options or {})
+        self.load_schedule = tuple((float(t), float(m)) for t, m in
+                                   self.simulator_options.pop('load_schedule', ()) or ())
+        #: ``(epoch, device sample index, mass [kg])`` of every scheduled load applied.
+        self.load_changes: List[Tuple[int, int, float]] = []
+        self._pending_loads: List[Tuple[int, float]] = []
         reference = bool(self.simulator_options.get('reference_channels', True))
         self.catalogue: Tuple[str, ...] = channels.channel_names(reference)
         if self.simulator_options.get('control') is not None:
@@ -120,6 +127,9 @@ class SimulatedDevice:
         if self.sim is None:
             try:
                 self.sim = self._build_simulator(sample_rate_Hz)
+                # compile (or load) the kernels now, on a throwaway copy: the first block of
+                # a closed loop would otherwise keep the device silent past a host's timeout
+                self._build_simulator(sample_rate_Hz).step_block(np.zeros((2, 1)))
             except ValueError:      # e.g. a closed loop that needs another rate: at configure
                 self.sim = None
 
@@ -224,6 +234,8 @@ class SimulatedDevice:
         self.queue = ExcitationQueue(self.config.safe_values_V)
         self.watchdog_trip_index = None
         self.first_rejected_index = None
+        self._pending_loads = [(int(round(t * self.config.sample_rate_Hz)), m)
+                               for t, m in self.load_schedule]
         self.state = RUNNING
         return self.epoch
 
@@ -380,10 +392,28 @@ class SimulatedDevice:
         np.clip(out, lo, hi, out=out)
         if self.watchdog_trip_index is not None:
             out[:, max(0, min(n, self.watchdog_trip_index - first)):] = safe
-        values = self.sim.step_block(out)[self._rows]
+        values = self._simulate(first, out)[self._rows]
         self.index += n
         self.counters['samples_sent'] += n
         return first, to_codes(values, self._scale, self._offset), out
+
+    def _simulate(self, first: int, out: np.ndarray) -> np.ndarray:
+        # the block, split where the load schedule puts a new mass on the pan
+        n = out.shape[1]
+        if not self._pending_loads or self._pending_loads[0][0] >= first + n:
+            return self.sim.step_block(out)
+        parts = []
+        pos = 0
+        while pos < n:
+            while self._pending_loads and self._pending_loads[0][0] <= first + pos:
+                _, mass = self._pending_loads.pop(0)
+                self.sim.set_load(mass, self.sim.load_changer_coupled)
+                self.load_changes.append((self.epoch, first + pos, mass))
+            due = self._pending_loads[0][0] - first if self._pending_loads else n
+            end = min(n, max(due, pos + 1))
+            parts.append(self.sim.step_block(out[:, pos:end]))
+            pos = end
+        return np.concatenate(parts, axis=1)
 
     def to_si(self, codes: np.ndarray) -> np.ndarray:
         """

@@ -29,6 +29,7 @@ import numpy as np
 
 from emfc_ros.core.control.design import ControllerDesign, design_controller, plant_from_model
 from emfc_ros.core.control.loop_config import CurrentChannelConfig, loop_timing, LoopConfig
+from emfc_ros.core.control.robust import check_load_range
 from emfc_ros.core.control.runtime import controller_step, initial_state, pack_controller
 from emfc_ros.core.model.linear import linearise
 from emfc_ros.core.model.load import loaded
@@ -151,7 +152,11 @@ def _loop_jitted() -> Callable:
 
 def design_for(simulator: Simulator, config: LoopConfig) -> ControllerDesign:
     """
-    Design the controller of a loop configuration on the simulated balance's linear model.
+    Design the controller of a loop configuration and check it over the weighing range.
+
+    The design is made on the linear model at ``design_load_mass_kg``, then checked at loads
+    from 0 to ``max_load_kg`` (margins and exact closed-loop poles,
+    :func:`~emfc_ros.core.control.robust.check_load_range`).
 
     Parameters
     ----------
@@ -163,13 +168,22 @@ def design_for(simulator: Simulator, config: LoopConfig) -> ControllerDesign:
     Returns
     -------
     ControllerDesign
-        Controller and margins.
+        Controller and margins (at the design load).
+
+    Raises
+    ------
+    ValueError
+        If the design fails, or the loop is unstable or short of margins at some load of
+        the range (the message names the loads and the limits).
     """
-    model = linearise(loaded(simulator.params.mechanics, config.design_load_mass_kg,
-                             simulator.load_changer_coupled))
-    return design_controller(plant_from_model(model), config.rate_Hz, config.crossover_Hz,
-                             config.phase_margin_deg, delay_samples=config.delay_samples,
-                             notch_Hz=config.notch_Hz, notch_quality=config.notch_quality)
+    coupled = simulator.load_changer_coupled
+    model = linearise(loaded(simulator.params.mechanics, config.design_load_mass_kg, coupled))
+    design = design_controller(plant_from_model(model), config.rate_Hz, config.crossover_Hz,
+                               config.phase_margin_deg, delay_samples=config.delay_samples,
+                               notch_Hz=config.notch_Hz, notch_quality=config.notch_quality)
+    check_load_range(simulator.params.mechanics, design.controller, config.delay_samples,
+                     config.max_load_kg, coupled)
+    return design
 
 
 class ClosedLoopSimulator:
@@ -344,6 +358,38 @@ class ClosedLoopSimulator:
         out[-2] = self._precise_current_A(full[chain.N_OUT], first, sim.quantisation)
         out[-1] = full[chain.N_OUT + 1]
         return out
+
+    def step_loads(self, load_mass_kg, setpoints: Optional[np.ndarray] = None) -> np.ndarray:
+        """
+        Simulate a block with the mass on the pan given per sample (load steps at samples).
+
+        Parameters
+        ----------
+        load_mass_kg : array_like, shape (n,)
+            Mass on the pan at each sample [kg]; where it changes, :meth:`set_load` is applied
+            from that sample on (the load-changer coupling is kept).
+        setpoints : ndarray, shape (2, n), optional
+            Excitation (default zeros).
+
+        Returns
+        -------
+        ndarray, shape (len(channel_names), n)
+            Outputs, as :meth:`step_block`.
+        """
+        load = np.asarray(load_mass_kg, dtype=float)
+        if load.ndim != 1:
+            raise ValueError(f'load_mass_kg must be 1-D, got shape {load.shape}')
+        u = np.zeros((2, load.size)) if setpoints is None else np.asarray(setpoints, dtype=float)
+        if u.shape != (2, load.size):
+            raise ValueError(f'setpoints must have shape (2, {load.size}), got {u.shape}')
+        edges = np.concatenate(([0], np.nonzero(np.diff(load))[0] + 1, [load.size]))
+        parts = []
+        for a, b in zip(edges[:-1], edges[1:]):
+            if b > a:
+                if load[a] != self.load_mass_kg:
+                    self.set_load(float(load[a]), self.load_changer_coupled)
+                parts.append(self.step_block(u[:, a:b]))
+        return np.concatenate(parts, axis=1) if parts else self.step_block(u)
 
     def _precise_current_A(self, current_A: np.ndarray, first: int,
                            quantise: bool) -> np.ndarray:

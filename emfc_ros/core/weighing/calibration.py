@@ -25,11 +25,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 import math
+from typing import Optional
 
 import numpy as np
 
 from emfc_ros.core.model.parameters import MechanicalParameters
 from emfc_ros.core.weighing.errors import WeighingError
+
+
+#: Relative standard uncertainty of the sensitivity from the lever geometry (see
+#: :meth:`WeighingCalibration.nominal`).
+NOMINAL_SENSITIVITY_U_RELATIVE = 1.0e-3
 
 
 def _finite(name: str, value: float) -> float:
@@ -106,10 +112,16 @@ class WeighingCalibration:
             object.__setattr__(self, name, _uncertainty(name, getattr(self, name)))
 
     @classmethod
-    def nominal(cls, mechanics: MechanicalParameters,
-                zero_force_N: float = 0.0) -> 'WeighingCalibration':
+    def nominal(cls, mechanics: MechanicalParameters, zero_force_N: float = 0.0,
+                sensitivity_u_relative: Optional[float] = None) -> 'WeighingCalibration':
         """
         Calibration from the lever geometry, ``S = -(l2 + l3) / (l1 g)``.
+
+        The geometry is not the span: the loop holds ``y = 0``, not ``q = 0``, and the joint
+        flexes (0.054 % with the defaults), and real lever lengths have tolerances. Until an
+        adjustment replaces it, the nominal sensitivity carries a relative standard
+        uncertainty of :data:`NOMINAL_SENSITIVITY_U_RELATIVE` (0.1 %), so that a reading of
+        an unadjusted balance states what it can be off by.
 
         Parameters
         ----------
@@ -118,13 +130,19 @@ class WeighingCalibration:
         zero_force_N : float
             Compensation force of the empty pan [N] (e.g. from
             :func:`~emfc_ros.core.sim.hold_point.hold_point`); default 0 N.
+        sensitivity_u_relative : float, optional
+            Relative standard uncertainty of the nominal sensitivity; default
+            :data:`NOMINAL_SENSITIVITY_U_RELATIVE`.
 
         Returns
         -------
         WeighingCalibration
-            No tare, zero uncertainties.
+            No tare; the zero force without uncertainty.
         """
-        return cls(nominal_sensitivity_kg_per_N(mechanics), zero_force_N)
+        u = NOMINAL_SENSITIVITY_U_RELATIVE if sensitivity_u_relative is None \
+            else sensitivity_u_relative
+        return cls(nominal_sensitivity_kg_per_N(mechanics), zero_force_N,
+                   sensitivity_u_relative=u)
 
     def gross_mass_kg(self, force_N):
         """

@@ -9,6 +9,7 @@ profile into the load-changer amplifier setpoints that put the force ``m g`` on 
 from __future__ import annotations
 
 import math
+from typing import Tuple
 
 import numpy as np
 
@@ -216,3 +217,54 @@ def load_changer_setpoints_V(mass_kg, params: BalanceParameters) -> np.ndarray:
         raise WeighingError(f'mass_kg: setpoints up to {float(np.abs(volts).max()):.6g} V '
                             f'exceed the DAC range of +/-{conv.dac_range_V} V')
     return volts
+
+
+def parse_load_schedule(text: str, max_mass_kg: float = 2.0) -> Tuple[Tuple[float, float], ...]:
+    """
+    Parse a load schedule ``'t:kg,t:kg,...'`` (simulated seconds : mass on the pan).
+
+    ``'0:0,2:0.0734829,5:0'``: empty pan from 0 s, 73.4829 g from 2 s, empty again from 5 s.
+    An empty text is no schedule.
+
+    Parameters
+    ----------
+    text : str
+        The schedule: comma-separated ``time_s:mass_kg`` pairs, times strictly increasing.
+    max_mass_kg : float
+        Largest mass accepted [kg].
+
+    Returns
+    -------
+    tuple of (float, float)
+        ``(time_s, mass_kg)`` pairs in order.
+
+    Raises
+    ------
+    WeighingError
+        Naming the entry that is malformed, negative, out of order or too heavy.
+    """
+    out = []
+    text = str(text).strip()
+    if not text:
+        return ()
+    for k, item in enumerate(text.split(',')):
+        parts = item.strip().split(':')
+        if len(parts) != 2:
+            raise WeighingError(f'load schedule entry {k + 1} {item.strip()!r}: need '
+                                'time_s:mass_kg (for example 2:0.0734829)')
+        try:
+            t, m = float(parts[0]), float(parts[1])
+        except ValueError:
+            raise WeighingError(f'load schedule entry {k + 1} {item.strip()!r}: time and mass '
+                                'must be numbers') from None
+        if not (math.isfinite(t) and t >= 0.0):
+            raise WeighingError(f'load schedule entry {k + 1} {item.strip()!r}: time must be '
+                                '>= 0 s')
+        if not (math.isfinite(m) and 0.0 <= m <= max_mass_kg):
+            raise WeighingError(f'load schedule entry {k + 1} {item.strip()!r}: mass must be '
+                                f'from 0 to {max_mass_kg:g} kg')
+        if out and t <= out[-1][0]:
+            raise WeighingError(f'load schedule entry {k + 1} {item.strip()!r}: times must '
+                                'increase')
+        out.append((t, m))
+    return tuple(out)

@@ -68,6 +68,20 @@ class Reading:
         Whether the window held ``averaging_time_s`` of samples.
     gap_count : int
         Gaps detected in the stream so far (each reset the window).
+    steady : bool
+        Whether the load was constant within the stability threshold over the window (what
+        zero, tare and adjust need; :class:`ReadingFilter`: the same as its ``stable``).
+    calibrated : bool
+        Whether the balance had been zeroed (or given a calibration) when the reading was
+        made; an uncalibrated reading is never ``stable``
+        (:class:`~emfc_ros.core.weighing.pipeline.WeighingPipeline`).
+    resolution_u_kg : float
+        The current channel's quantisation share of the uncertainty [kg] (included in
+        ``standard_uncertainty_kg``).
+    motion_u_kg : float
+        The lever's residual displacement share of the uncertainty [kg] (included).
+    mean_position_m : float
+        Mean lever-end position over the window [m] (nan when not known).
     """
 
     sample_index: int
@@ -81,6 +95,11 @@ class Reading:
     force_u_N: float
     window_full: bool
     gap_count: int = 0
+    steady: bool = False
+    calibrated: bool = True
+    resolution_u_kg: float = 0.0
+    motion_u_kg: float = 0.0
+    mean_position_m: float = math.nan
 
 
 def _positive(name: str, value: float) -> float:
@@ -309,7 +328,8 @@ class ReadingFilter:
                        mass_kg=float(cal.mass_kg(mean)), standard_uncertainty_kg=u_mass,
                        stable=bool(stable), averaging_time_s=window.size / self._fs,
                        n_samples=int(window.size), mean_force_N=mean, force_u_N=u_force,
-                       window_full=bool(full), gap_count=self.gap_count)
+                       window_full=bool(full), gap_count=self.gap_count,
+                       steady=bool(stable))
 
 
 def settled_reading(force_N, sample_rate_Hz: float, calibration: WeighingCalibration,
@@ -366,4 +386,4 @@ def settled_reading(force_N, sample_rate_Hz: float, calibration: WeighingCalibra
     return Reading(sample_index=last, time_s=last / fs, mass_kg=float(calibration.mass_kg(mean)),
                    standard_uncertainty_kg=u_mass, stable=bool(drift_kg < threshold),
                    averaging_time_s=n / fs, n_samples=n, mean_force_N=mean, force_u_N=u_force,
-                   window_full=True, gap_count=0)
+                   window_full=True, gap_count=0, steady=bool(drift_kg < threshold))
