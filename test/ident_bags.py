@@ -90,8 +90,8 @@ def write_experiment_bag(path: Path, channels: Mapping[str, np.ndarray], sample_
         tuple(Channel(c, _unit(c)) for c in names), epoch=1, total_samples=n,
         source='/test_writer', extra=dict(extra or {})).to_json()))
     writer.write(exc_d, 2, _text(StreamDescription(
-        'excitation', sample_rate_Hz, block_size, (Channel('coil', 'V'),
-                                                    Channel('load_changer', 'V')),
+        'excitation', sample_rate_Hz, block_size,
+        (Channel('coil', 'V'), Channel('load_changer', 'V')),
         epoch=1, total_samples=n, source='/test_writer',
         extra={'sections': table}).to_json()))
     setpoints = np.vstack([channels['coil_setpoint_V'], channels['load_changer_setpoint_V']])

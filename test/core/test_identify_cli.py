@@ -20,7 +20,7 @@ from emfc_ros.core.ident.offnominal import (draw_balance, record_draw, TEST_SEED
                                             with_noise_position, with_position_gain)
 from emfc_ros.core.paths import config_file
 from emfc_ros.core.signals import experiment_from_config, find_experiment_mapping
-from ident_bags import write_experiment_bag
+import ident_bags
 
 SEED = TEST_SEEDS[3]
 
@@ -38,11 +38,12 @@ def record():
 
 def bag_of(record, folder: Path) -> Path:
     rec = record.recording
-    return write_experiment_bag(folder / 'bag', rec.channels, rec.sample_rate_Hz,
-                                record.section_table,
-                                extra={'load_mass_kg': record.known_load_mass_kg,
-                                       'load_changer_coupled': record.load_changer_coupled,
-                                       'time_mode': 'simulated'})
+    return ident_bags.write_experiment_bag(folder / 'bag', rec.channels, rec.sample_rate_Hz,
+                                           record.section_table,
+                                           extra={'load_mass_kg': record.known_load_mass_kg,
+                                                  'load_changer_coupled':
+                                                      record.load_changer_coupled,
+                                                  'time_mode': 'simulated'})
 
 
 def identify(bag: Path, out: Path, *extra: str) -> subprocess.CompletedProcess:
