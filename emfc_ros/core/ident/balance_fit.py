@@ -353,17 +353,64 @@ def offset_start(model: BalanceGreyboxModel, values: Dict[str, float],
     return y0 + shift
 
 
+def noise_shapes(model: BalanceGreyboxModel, values: Dict[str, float],
+                 data: Sequence[Any], setting: Setting
+                 ) -> Tuple[List[List[np.ndarray]], List[np.ndarray]]:
+    """
+    Spectral shapes of the noise model and transient bases per section, for a parameter set.
+
+    The noise model's shapes are the model's ``|H_coil|^2`` and ``|H_pan|^2``
+    (:mod:`~emfc_ros.core.ident.noise_model`); the transient basis is
+    ``C (z_k I - A_d)^-1 z_k`` of the model discretised at the sample rate (the leakage
+    of process noise through the mechanics, see :func:`~emfc_ros.core.ident.greybox.fit_greybox`).
+
+    Parameters
+    ----------
+    model : BalanceGreyboxModel
+        The time-domain model.
+    values : dict of str to float
+        Parameter values (free parameters and the rest position).
+    data : sequence of DataSection
+        The sections.
+    setting : Setting
+        The configuration.
+
+    Returns
+    -------
+    shapes : list of list of ndarray
+        Per section the two shapes on its ``n // 2 + 1`` lines.
+    transients : list of ndarray
+        One complex basis of shape (``n // 2 + 1``, 4) per section.
+    """
+    from scipy import linalg as sla
+
+    lin = linearise(loaded(model.balance(values).mechanics, setting.load_mass_kg,
+                           setting.load_changer_coupled))
+    a_d = sla.expm(lin.A / setting.sample_rate_Hz)
+    eye = np.eye(a_d.shape[0])
+    shapes, bases = [], []
+    for sec in data:
+        n = len(sec.outputs)
+        f = np.fft.rfftfreq(n, 1.0 / setting.sample_rate_Hz)
+        shapes.append([np.abs(lin.frequency_response(f, inp).response_m_per_N) ** 2
+                       for inp in ('coil', 'pan')])
+        z = np.exp(2j * np.pi * np.arange(f.size) / n)
+        # rows C (z I - A)^-1 z: solve (z I - A)^T v = C^T per line
+        lhs = np.transpose(z[:, None, None] * eye[None] - a_d[None], (0, 2, 1))
+        rhs = np.broadcast_to(lin.C[0].astype(complex), (f.size, eye.shape[0]))[..., None]
+        bases.append(np.linalg.solve(lhs, rhs)[..., 0] * z[:, None])
+    return shapes, bases
+
+
 def noise_weights(model: BalanceGreyboxModel, values: Dict[str, float],
-                  data: Sequence[Any], setting: Setting,
-                  residuals: Optional[Sequence[np.ndarray]] = None
+                  data: Sequence[Any], setting: Setting
                   ) -> Tuple[List[np.ndarray], List[np.ndarray]]:
     """
     Whitening weights and transient bases per section from the output error at the start.
 
-    The noise model's shapes are the start model's ``|H_coil|^2`` and ``|H_pan|^2``
-    (:mod:`~emfc_ros.core.ident.noise_model`); the transient basis is
-    ``C (z_k I - A_d)^-1 z_k`` of the start model discretised at the sample rate (the leakage
-    of process noise through the mechanics, see :func:`~emfc_ros.core.ident.greybox.fit_greybox`).
+    The weights come from the smooth noise model (:func:`noise_shapes`,
+    :func:`~emfc_ros.core.ident.noise_model.whitening_weights`) fitted to the output error at
+    ``values``.
 
     Parameters
     ----------
@@ -375,9 +422,6 @@ def noise_weights(model: BalanceGreyboxModel, values: Dict[str, float],
         The sections.
     setting : Setting
         The configuration.
-    residuals : sequence of ndarray, optional
-        The output error per section to estimate the noise from (default: measured minus
-        simulated at ``values``).
 
     Returns
     -------
@@ -386,28 +430,13 @@ def noise_weights(model: BalanceGreyboxModel, values: Dict[str, float],
     transients : list of ndarray
         One complex basis of shape (``n // 2 + 1``, 4) per section.
     """
-    from scipy import linalg as sla
-
-    record = model.simulate_record(values) if residuals is None else None
-    lin = linearise(loaded(model.balance(values).mechanics, setting.load_mass_kg,
-                           setting.load_changer_coupled))
-    a_d = sla.expm(lin.A / setting.sample_rate_Hz)
-    eye = np.eye(a_d.shape[0])
-    weights, bases = [], []
-    for sec in data:
-        n = len(sec.outputs)
+    record = model.simulate_record(values)
+    shapes, bases = noise_shapes(model, values, data, setting)
+    weights = []
+    for sec, shape in zip(data, shapes):
         first = model.offset(sec.inputs)
-        f = np.fft.rfftfreq(n, 1.0 / setting.sample_rate_Hz)
-        shapes = [np.abs(lin.frequency_response(f, inp).response_m_per_N) ** 2
-                  for inp in ('coil', 'pan')]
-        err = sec.outputs - record[first:first + n] if residuals is None \
-            else residuals[len(weights)]
-        weights.append(whitening_weights(err, shapes))
-        z = np.exp(2j * np.pi * np.arange(f.size) / n)
-        # rows C (z I - A)^-1 z: solve (z I - A)^T v = C^T per line
-        lhs = np.transpose(z[:, None, None] * eye[None] - a_d[None], (0, 2, 1))
-        rhs = np.broadcast_to(lin.C[0].astype(complex), (f.size, eye.shape[0]))[..., None]
-        bases.append(np.linalg.solve(lhs, rhs)[..., 0] * z[:, None])
+        weights.append(whitening_weights(sec.outputs - record[first:first + len(sec.outputs)],
+                                         shape))
     return weights, bases
 
 
@@ -450,14 +479,17 @@ def residual_tests(model: BalanceGreyboxModel, fit: Any, data: Sequence[Any],
     tuple of SectionFit
         ``fit.sections`` with the tests replaced (``residual_tested`` says which residual).
     """
-    first_weights, bases = noise_weights(model, fit.parameters, data, setting)
+    shapes, bases = noise_shapes(model, fit.parameters, data, setting)
     record = model.simulate_record(fit.parameters)
     errors = [np.asarray(sec.outputs) - record[model.offset(sec.inputs):][:len(sec.outputs)]
               for sec in data]
-    # the residual without its transient term, for the noise model
-    clean = [np.fft.irfft(np.fft.rfft(prewhitened(e, w, weighted_transient_basis(g, w)))
-                          / w, e.size) for e, w, g in zip(errors, first_weights, bases)]
-    weights, _ = noise_weights(model, fit.parameters, data, setting, residuals=clean)
+    weights = []
+    for e, shape, g in zip(errors, shapes, bases):
+        # the noise model from the residual without its transient term
+        w = whitening_weights(e, shape)
+        clean = np.fft.irfft(np.fft.rfft(prewhitened(e, w, weighted_transient_basis(g, w)))
+                             / w, e.size)
+        weights.append(whitening_weights(clean, shape))
     out = []
     for sec, err, w, g, old in zip(data, errors, weights, bases, fit.sections):
         n = len(sec.outputs)
