@@ -228,8 +228,8 @@ def identifiability_lines(g: Mapping[str, Any]) -> list:
 
     if ident:
         summary('requested, frequency domain at the start', ident['requested'])
-        summary('left free', ident['free'])
         if ident['fixed']:
+            summary('left free', ident['free'])
             lines.append('- fixed on purpose at the configured values:')
             lines += [f'  - {n}: {why}' for n, why in ident['fixed'].items()]
         else:
