@@ -63,6 +63,7 @@ from emfc_ros.core.device.sim_backend import load_parameters
 from emfc_ros.core.device.udp_backend import INTRUSION_COUNTERS
 from emfc_ros.core.errors import BlockError, ConfigError
 from emfc_ros.core.excitation_queue import DROPPED, ExcitationQueue, JumpGuard
+from emfc_ros.core.pan_load import declared_pan_load
 from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
@@ -159,41 +160,6 @@ PARAMETERS: Dict[str, Tuple[Any, str]] = {
     'sim.load_changer_coupled': (False, "sim: the load changer's moving mass rides on the "
                                         'pan'),
 }
-
-
-def declared_pan_load(load_mass_kg: float, coupled: str) -> Dict[str, Any]:
-    """
-    The pan load a user declared to the bridge, for the measurement description.
-
-    Parameters
-    ----------
-    load_mass_kg : float
-        ``pan.load_mass_kg`` [kg]; negative: not declared.
-    coupled : str
-        ``pan.load_changer_coupled``: ``'true'``, ``'false'`` or ``''`` (not declared).
-
-    Returns
-    -------
-    dict
-        ``load_mass_kg`` and ``load_changer_coupled`` as declared (empty when not).
-
-    Raises
-    ------
-    ConfigError
-        For a non-finite or too large mass, or another coupling text.
-    """
-    out: Dict[str, Any] = {}
-    if not math.isfinite(load_mass_kg) or load_mass_kg > 100.0:
-        raise ConfigError('pan.load_mass_kg', f'must be from 0 to 100 kg (negative: not '
-                                              f'declared), got {load_mass_kg}')
-    if load_mass_kg >= 0.0:
-        out['load_mass_kg'] = load_mass_kg
-    if coupled not in ('', 'true', 'false'):
-        raise ConfigError('pan.load_changer_coupled', f"must be 'true', 'false' or '', got "
-                                                      f'{coupled!r}')
-    if coupled:
-        out['load_changer_coupled'] = coupled == 'true'
-    return out
 
 
 #: Inclusive limits of the numeric parameters (descriptors; ``ros2 param describe``); an

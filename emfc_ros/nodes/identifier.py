@@ -13,6 +13,13 @@ Services (``std_srvs/Trigger``): ``~/identify_bag`` (the bag named by the ``bag`
 parameter), ``~/start_accumulating`` (buffer live measurement blocks from now on; start it
 before the experiment), ``~/identify`` (identify what was accumulated). Identification runs
 in a worker thread; a request while one runs is refused with the reason.
+
+What was on the pan is never guessed. For a bag it comes from the bag (as ``emfc-identify``);
+for live data from, in order, the options file (``load_mass_kg``, ``load_changer_coupled``),
+the parameters ``pan.load_mass_kg``/``pan.load_changer_coupled``, or the measurement
+description's ``extra`` (the plant simulator publishes both there, a daq_bridge when told
+``pan.*``). Without them ``~/identify`` is refused and ``~/result`` says which parameter to set
+(:mod:`emfc_ros.core.ident.live`).
 """
 
 from __future__ import annotations
@@ -34,10 +41,12 @@ import yaml
 
 from emfc_ros.core.blocks import Continuity, SequenceTracker
 from emfc_ros.core.errors import BlockError
+from emfc_ros.core.pan_load import declared_pan_load
 from emfc_ros.core.safe_yaml import load_yaml_file, one_line, YamlRefused
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, LATCHED_QOS, msg_to_block, msg_to_description, node_diagnostics, steady_clock)
-from emfc_ros.nodes.params import declare_table, pending_refusals, refuse_unknown
+from emfc_ros.nodes.params import (declare_table, pending_refusals, refuse_choice,
+                                   refuse_unknown)
 from emfc_ros.nodes.spin import node_main
 
 PARAMETERS = {
@@ -46,9 +55,16 @@ PARAMETERS = {
                                      'own results folder [path]'),
     'options_file': ('', 'identification options YAML (a mapping) [path]; empty: defaults'),
     'max_accumulated_samples': (50_000_000, 'bound on live accumulation [samples]'),
+    'pan.load_mass_kg': (-1.0, 'live data: mass on the pan during the experiment [kg], 0 to '
+                               '100; negative: not declared (then from the options file or '
+                               "the measurement description's extra, else the "
+                               'identification is refused)'),
+    'pan.load_changer_coupled': ('', "live data: 'true' or 'false', whether the load "
+                                     "changer's moving mass rode on the pan; '': not "
+                                     'declared (as pan.load_mass_kg)'),
 }
 #: Inclusive limits of the numeric parameters (descriptors; ``ros2 param describe``).
-LIMITS = {'max_accumulated_samples': (1, 2 ** 62)}
+LIMITS = {'max_accumulated_samples': (1, 2 ** 62), 'pan.load_mass_kg': (-1.0, 100.0)}
 #: Shown in the start-up log line (with every parameter set to a non-default value).
 STARTUP_KEYS = ('output_dir', 'bag', 'options_file')
 
@@ -66,6 +82,7 @@ class IdentifierNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('identifier', **kwargs)
         refused = declare_table(self, PARAMETERS, LIMITS)
+        refused += refuse_choice(self, 'pan.load_changer_coupled', ('', 'true', 'false'))
         refused += refuse_unknown(self)
         self._lock = threading.Lock()
         self._busy = False
@@ -75,6 +92,8 @@ class IdentifierNode(Node):
         self._tracker = SequenceTracker()
         self._names: tuple = ()
         self._rate = 0.0
+        self._extra: dict = {}            # the measurement description's extra
+        self._source = ''                 # who published the measurement description
         self._sections: list = []
         self._malformed = 0
         self._last_error = '; '.join(refused)   # reported on /diagnostics
@@ -110,6 +129,10 @@ class IdentifierNode(Node):
                     p.type_ != Parameter.Type.INTEGER or p.value < 1):
                 return SetParametersResult(successful=False,
                                            reason='max_accumulated_samples must be >= 1')
+            if p.name == 'pan.load_changer_coupled' and p.value not in ('', 'true', 'false'):
+                return SetParametersResult(
+                    successful=False, reason="pan.load_changer_coupled must be 'true', "
+                                             f"'false' or '' (not declared), got {p.value!r}")
         return SetParametersResult(successful=True)
 
     @staticmethod
@@ -139,6 +162,8 @@ class IdentifierNode(Node):
             return
         self._names = description.channel_names
         self._rate = description.sample_rate_Hz
+        self._extra = dict(description.extra)
+        self._source = description.source
 
     def _on_experiment(self, msg: String) -> None:
         try:
@@ -203,6 +228,15 @@ class IdentifierNode(Node):
             response.success, response.message = False, \
                 'no section table: excitation/description has not been received'
             return response
+        from emfc_ros.core.ident.live import resolve_live_plant
+        try:     # refused at once (and on ~/result) when the pan load is not known
+            resolve_live_plant(self._options(), self._declared(), self._extra)
+        except ValueError as exc:
+            self._publish_result({'ok': False, 'output': None, 'error': str(exc),
+                                  'failures': [str(exc)], 'warnings': []})
+            self._last_error = str(exc)
+            response.success, response.message = False, str(exc)
+            return response
         busy = self._claim()
         if busy:
             response.success, response.message = False, busy
@@ -245,10 +279,15 @@ class IdentifierNode(Node):
         from emfc_ros.core.ident.from_bag import identify_bag
         self._work(lambda options: identify_bag(bag, options, progress=self._progress)[0], out)
 
+    def _declared(self) -> dict:
+        return declared_pan_load(float(self.get_parameter('pan.load_mass_kg').value),
+                                 str(self.get_parameter('pan.load_changer_coupled').value))
+
     def _work_arrays(self, recording: dict, out: Path) -> None:
-        from emfc_ros.core.ident import pipeline
-        self._work(lambda options: pipeline.identify(
-            recording, self._sections, options, sample_rate_Hz=self._rate,
+        from emfc_ros.core.ident.live import identify_accumulated
+        extra, source, declared = dict(self._extra), self._source, self._declared()
+        self._work(lambda options: identify_accumulated(
+            recording, self._sections, self._rate, options, extra, declared, source,
             progress=self._progress), out)
 
     def _work(self, run, out: Path) -> None:
@@ -267,12 +306,16 @@ class IdentifierNode(Node):
                 self._last_error = 'identification failed: ' + '; '.join(result.failures)
                 self.get_logger().error(f'{self._last_error} (report in {out})')
         except (ValueError, OSError, KeyError) as exc:
-            doc = {'ok': False, 'output': str(out), 'error': str(exc)}
+            doc = {'ok': False, 'output': str(out), 'error': str(exc),
+                   'failures': [str(exc)], 'warnings': []}
             self._last_error = str(exc)
             self.get_logger().error(f'identification failed: {exc}')
         finally:
             with self._lock:
                 self._busy = False
+        self._publish_result(doc)
+
+    def _publish_result(self, doc: dict) -> None:
         self._last_result = json.dumps(doc)
         self._pub_result.publish(String(data=self._last_result))
 

@@ -72,3 +72,45 @@ def test_masses_that_contradict_without_a_common_scale_fail_the_consistency_test
 
 def test_zero_uncertainty_disables_the_check():
     assert verdict_for(draw_balance(SEEDS[0]), 1.3, relative_uncertainty=0.0).failures == []
+
+
+def _fit(values, errors, sections=()):
+    from emfc_ros.core.ident.greybox import GreyboxResult
+    names = tuple(values)
+    return GreyboxResult(dict(values), dict(errors), np.eye(len(names)), names, 1.0, 1, 1, 0.0,
+                         'least_squares', True, 'ok', tuple(sections))
+
+
+def test_poorly_determined_free_parameters_are_named():
+    from emfc_ros.core.ident.balance_verdict import (check_uncertainties,
+                                                     POOR_RELATIVE_UNCERTAINTY)
+    fit = _fit({'c1_Nm_per_rad': 0.1, 'c2_Nm_per_rad': 20.0, 'M11_kgm2': 1e-4,
+                'M22_kgm2': 1.5e-5, 'rest_position_m': 1e-9},
+               {'c1_Nm_per_rad': 1e-4, 'c2_Nm_per_rad': 20.0 * 1.5 * POOR_RELATIVE_UNCERTAINTY,
+                'M11_kgm2': 0.08e-4, 'M22_kgm2': 0.01 * 1.5e-5, 'rest_position_m': 1e-8})
+    verdict = Verdict()
+    check_uncertainties(fit, 0.05, verdict, skip=('rest_position_m',))
+    text = ' '.join(verdict.warnings)
+    assert len(verdict.warnings) == 2, verdict.warnings
+    assert 'c2_Nm_per_rad is poorly determined' in text and '15 %' in text
+    # a mass-matrix entry known worse (8 %) than the configured masses (5 %)
+    assert 'M11_kgm2 is poorly determined' in text and 'configured masses (5 %)' in text
+    assert 'c1_Nm_per_rad' not in text and 'rest_position_m' not in text
+    assert verdict.failures == []           # the numbers are honest: a warning, not a failure
+
+
+def test_residual_tests_of_a_prewhitened_residual_are_judged():
+    from emfc_ros.core.ident.balance_verdict import check
+    from emfc_ros.core.ident.greybox import SectionFit
+    good = SectionFit('a', np.array([99.9]), 1.0, 1.0, np.array([1e-9]),
+                      'noise-weighted (noise model of the final residual)')
+    bad = SectionFit('b', np.array([99.9]), 0.96, 0.2, np.array([1e-9]),
+                     'noise-weighted (noise model of the final residual)')
+    raw = SectionFit('c', np.array([99.9]), 0.0, 0.0, np.array([1e-9]), 'raw')
+    fit = _fit({'c1_Nm_per_rad': 0.1}, {'c1_Nm_per_rad': 1e-5}, (good, bad, raw))
+    fit = replace(fit, initial={'c1_Nm_per_rad': 0.09})
+    verdict = Verdict()
+    check(fit, [], None, verdict)
+    assert len(verdict.warnings) == 1, verdict.warnings
+    assert "section 'b'" in verdict.warnings[0] and 'uncorrelated with the inputs' in \
+        verdict.warnings[0] and '20 %' in verdict.warnings[0]

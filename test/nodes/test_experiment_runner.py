@@ -21,6 +21,7 @@ import yaml
 
 from emfc_ros.core.bag import read_metadata, read_streams
 from emfc_ros.core.blocks import unpack
+from emfc_ros.core.model.parameters import BalanceParameters
 from emfc_ros.core.paths import config_file
 from emfc_ros.core.run_plan import load_plan
 from emfc_ros.core.signals import experiment_from_config
@@ -232,6 +233,46 @@ def strip_plant_configuration(bag: Path, copy: Path) -> None:
     for key in ('emfc_ros.plant_configuration', 'emfc_ros.node_parameters'):
         custom.pop(key)
     (copy / 'metadata.yaml').write_text(yaml.safe_dump(meta))
+
+
+def short_experiment(path: Path, section_s: float = 3.0) -> Path:
+    """The shipped trajectory with 3 s sections (sweeps and steps shortened to match)."""
+    doc = yaml.safe_load(config_file('identification_trajectory.yaml').read_text())
+    experiment = doc['/**']['ros__parameters']['experiment']
+    for section in experiment['section'].values():
+        section['duration_s'] = section_s
+        for channel in ('coil', 'load_changer'):
+            for signal in section.get(channel, {}).get('signals', {}).values():
+                if signal['type'] == 'chirp':
+                    signal['sweep_time_s'] = section_s
+                if signal['type'] == 'steps':
+                    signal['times_s'] = [t * section_s / 10.0 for t in signal['times_s']]
+    path.write_text(yaml.safe_dump({'experiment': experiment}))
+    return path
+
+
+@pytest.mark.slow
+def test_a_failed_identification_exits_1_and_keeps_bag_and_report(tmp_path):
+    # The plan owns the pan load (run.simulator.load_mass_kg); its identification options
+    # configure the pan 0.1 kg heavier than the simulated one, which is the same to the
+    # model as a pan load told 0.1 kg wrong: the identified mass matrix contradicts it.
+    nominal = BalanceParameters.load_yaml(str(config_file('balance_default.yaml')))
+    plan = tmp_path / 'plan.yaml'
+    plan.write_text(yaml.safe_dump({'run': {
+        'name': 'wrong_pan', 'experiment_files': [str(short_experiment(tmp_path / 'e.yaml'))],
+        'simulator': {'balance_file': str(config_file('balance_default.yaml'))},
+        'identification': {'balance': {'mechanics': {
+            'mp_kg': nominal.mechanics.mp_kg + 0.1}}}}}))
+    out = tmp_path / 'run'
+    result = subprocess.run([_runner(), str(plan), '-o', str(out)], capture_output=True,
+                            text=True, timeout=900, env=ros_harness.child_environment(),
+                            cwd=tmp_path)
+    assert result.returncode == 1, result.stdout[-3000:] + result.stderr[-3000:]
+    assert 'identification failed' in result.stderr and 'mass matrix' in result.stderr
+    assert (out / 'bag' / 'metadata.yaml').is_file()
+    results = yaml.safe_load((out / 'identification' / 'results.yaml').read_text())
+    assert results['status']['success'] is False
+    assert '**Identification FAILED**' in (out / 'summary.md').read_text()
 
 
 def test_bad_plan_is_refused_with_the_key(tmp_path):

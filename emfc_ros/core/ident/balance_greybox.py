@@ -289,8 +289,8 @@ class BalanceGreyboxModel:
     """
 
     def __init__(self, params: BalanceParameters, sample_rate_Hz: float,
-                 setpoints_V: np.ndarray, load_mass_kg: float = 0.0,
-                 load_changer_coupled: bool = False, hold: str = 'zoh') -> None:
+                 setpoints_V: np.ndarray, load_mass_kg: float,
+                 load_changer_coupled: bool, hold: str = 'zoh') -> None:
         u = np.ascontiguousarray(setpoints_V, dtype=float)
         if u.ndim != 2 or u.shape[1] != 2 or u.shape[0] < 2:
             raise ValueError(f'setpoints_V must have shape (n >= 2, 2), got {u.shape}')

@@ -18,7 +18,7 @@ from emfc_ros.core.ident.balance_frf import FrfFit
 from emfc_ros.core.ident.balance_greybox import (MASS_COORDINATES, MASS_MATRIX_NAMES,
                                                  REST_POSITION, unit_of)
 from emfc_ros.core.ident.greybox import GreyboxResult
-from emfc_ros.core.ident.identifiability import FreeSetChoice
+from emfc_ros.core.ident.identifiability import FreeSetChoice, Identifiability
 from emfc_ros.core.model.linear import LinearModel
 from emfc_ros.core.model.parameters import BalanceParameters
 
@@ -74,6 +74,9 @@ class BalanceGreyboxResult:
         Fisher-information analysis and what it fixed.
     sources : dict of str to str
         Where every mechanical parameter's value comes from.
+    time_domain_identifiability : Identifiability or None
+        The same analysis from the time-domain fit's covariance (the sections and inputs the
+        fit used, coloured noise included; the rest position left out).
     time_s : dict of str to ndarray
         Per section: time from the section start [s].
     measured_m, simulated_m : dict of str to ndarray
@@ -91,6 +94,7 @@ class BalanceGreyboxResult:
     frequency_domain: Optional[FrfFit] = None
     identifiability: Optional[FreeSetChoice] = None
     sources: Dict[str, str] = field(default_factory=dict)
+    time_domain_identifiability: Optional[Identifiability] = None
     time_s: Dict[str, np.ndarray] = field(default_factory=dict)
     measured_m: Dict[str, np.ndarray] = field(default_factory=dict)
     simulated_m: Dict[str, np.ndarray] = field(default_factory=dict)
@@ -148,20 +152,81 @@ CONDITIONAL = {
 }
 
 
-def parameter_table(g: BalanceGreyboxResult) -> List[Dict[str, Any]]:
+#: The characteristics that turn the recorded channels into the model's forces and position,
+#: with what each does there (fixed on purpose: the data fix the mechanics only relative to
+#: them, see ``docs/identification.md`` section 5, "Scale").
+CHARACTERISTICS = (
+    ('coil_amplifier', 'coeffs_A_per_V_pow', 'A/V^k, ascending powers k',
+     'coil setpoint [V] to coil current [A] (model input)'),
+    ('motor', 'coeffs_N_per_A_per_mm_pow', 'N/(A mm^k), ascending powers k',
+     'coil current [A] and position [m] to coil force [N]'),
+    ('load_changer_amplifier', 'coeffs_A_per_V_pow', 'A/V^k, ascending powers k',
+     'load-changer setpoint [V] to its current [A] (model input)'),
+    ('load_changer', 'coeffs_N_per_A_pow', 'N/A^k, ascending powers k',
+     'load-changer current [A] to the force on the pan [N]'),
+    ('sensor', 'coeffs_V_per_m_pow', 'V/m^k, ascending powers k',
+     'position [m] to sensor voltage [V]: the source of the recording (plant simulator or '
+     'daq_bridge, with its balance file) converted the voltage to position_m; the model '
+     'applies it there and back (identity inside the sensor range)'),
+)
+
+
+def characteristic_source(balance: Optional[BalanceParameters], part: str,
+                          name: Optional[str] = None) -> str:
     """
-    Every mechanical parameter of the fitted model: identified or fixed, value and source.
+    Where a configured value of the identification's balance comes from.
+
+    Parameters
+    ----------
+    balance : BalanceParameters or None
+        The balance the identification used (``IdentificationConfig.balance``).
+    part : str
+        Field of :class:`BalanceParameters` (``'motor'``, ``'mechanics'``, ...).
+    name : str, optional
+        A field of that part (e.g. ``'m1_kg'``); default the whole part.
+
+    Returns
+    -------
+    str
+        ``'configuration (balance: identification options balance.<part>)'`` when the
+        options changed it from the built-in defaults, else ``'configuration (balance:
+        built-in defaults = config/balance_default.yaml)'``.
+    """
+    default = getattr(BalanceParameters(), part)
+    if balance is not None:
+        mine = getattr(balance, part)
+        changed = (getattr(mine, name) != getattr(default, name)) \
+            if name and hasattr(default, name) else mine != default
+        if changed:
+            return f'configuration (balance: identification options balance.{part})'
+    return 'configuration (balance: built-in defaults = config/balance_default.yaml)'
+
+
+def parameter_table(g: BalanceGreyboxResult, balance: Optional[BalanceParameters] = None,
+                    plant: Optional[Dict[str, Any]] = None) -> List[Dict[str, Any]]:
+    """
+    Every model parameter: identified or fixed, value and source.
+
+    The mechanics of the fitted model, the pan load and the load-changer coupling (the
+    experiment's configuration) and the characteristics that convert setpoints and currents to
+    forces and the sensor voltage to position (:data:`CHARACTERISTICS`, fixed on purpose).
 
     Parameters
     ----------
     g : BalanceGreyboxResult
         The result.
+    balance : BalanceParameters, optional
+        The balance the identification used (for the characteristics' rows).
+    plant : dict, optional
+        ``load_mass_kg``, ``load_changer_coupled`` and ``source`` (for the configuration's
+        rows).
 
     Returns
     -------
     list of dict
         ``name, value, unit, status, source, standard_uncertainty`` (None when fixed), and a
-        ``note`` for identified parameters that hold only together with fixed ones.
+        ``note`` for identified parameters that hold only together with fixed ones and for
+        the characteristics (what each converts).
     """
     rows = []
     for name, value in g.parameters.items():
@@ -180,6 +245,24 @@ def parameter_table(g: BalanceGreyboxResult) -> List[Dict[str, Any]]:
         if identified and name in CONDITIONAL:
             row['note'] = CONDITIONAL[name]
         rows.append(row)
+    if plant is not None:
+        rows.append({'name': 'load_mass_kg', 'value': plant.get('load_mass_kg'), 'unit': 'kg',
+                     'status': 'fixed', 'source': plant.get('source', ''),
+                     'standard_uncertainty': None,
+                     'note': 'mass on the pan during the experiment; taken as exact (it '
+                             'anchors the mass check)'})
+        rows.append({'name': 'load_changer_coupled', 'value': plant.get('load_changer_coupled'),
+                     'unit': '', 'status': 'fixed', 'source': plant.get('source', ''),
+                     'standard_uncertainty': None,
+                     'note': "whether the load changer's moving mass rode on the pan"})
+    if balance is not None:
+        for part, key, unit, role in CHARACTERISTICS:
+            rows.append({'name': f'{part}.{key}',
+                         'value': [float(c) for c in getattr(getattr(balance, part), key)],
+                         'unit': unit, 'status': 'fixed',
+                         'source': characteristic_source(balance, part),
+                         'standard_uncertainty': None,
+                         'note': f'fixed on purpose: converts {role}'})
     return rows
 
 
@@ -246,7 +329,8 @@ def greybox_dict(g: Optional[BalanceGreyboxResult]) -> Optional[dict]:
         'sections': [{'name': s.name, 'fit_percent': float(np.min(s.fit_percent)),
                       'rms_error_m': float(np.max(s.rms_error)),
                       'whiteness_fraction': s.whiteness_fraction,
-                      'input_correlation_fraction': s.input_correlation_fraction}
+                      'input_correlation_fraction': s.input_correlation_fraction,
+                      'residual_tested': s.residual_tested}
                      for s in fit.sections],
         'linearised_model': {
             'poles': [root_dict(p) for p in lin.poles()],
@@ -263,5 +347,7 @@ def greybox_dict(g: Optional[BalanceGreyboxResult]) -> Optional[dict]:
             'requested': choice.initial_analysis.to_dict(),
             'free': choice.analysis.to_dict(),
             'fixed': dict(choice.fixed)},
+        'time_domain_identifiability': (None if g.time_domain_identifiability is None
+                                        else g.time_domain_identifiability.to_dict()),
     }
     return out

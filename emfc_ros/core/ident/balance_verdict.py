@@ -16,6 +16,7 @@ from typing import Any, Mapping, Optional, Sequence
 import numpy as np
 from scipy import linalg
 
+from emfc_ros.core.ident.balance_greybox import MASS_MATRIX_NAMES
 from emfc_ros.core.ident.balance_result import Derived, MASS_KEYS, Setting, Verdict
 from emfc_ros.core.ident.greybox import GreyboxResult, ParameterSpec
 from emfc_ros.core.model.load import loaded
@@ -43,6 +44,21 @@ MASS_PARAMETERS = ('mp_kg', 'm1_kg', 'J1c_kgm2', 'm2_kg', 'J2c_kgm2', 'm3_kg',
                    'load_changer_mass_kg')
 #: A free parameter within this fraction of its scale from a bound counts as at the bound.
 BOUND_TOLERANCE = 1.0e-6
+#: A free stiffness or damping whose relative standard uncertainty exceeds this is reported
+#: as poorly determined by the experiment (its 95 % interval spans more than +/-20 %; the
+#: issue's targets are 2 % for stiffnesses and 10 % for dampings). On the shipped trajectory
+#: the largest is below 1 % (d2; 3 s sections: 1.0 %), on a coil chirp alone with the masses
+#: fixed 4 % (d2), so the warning fires on experiments that do not excite a parameter, not on
+#: noise. Free mass-matrix entries use ``greybox.mass_relative_uncertainty`` instead: a mass
+#: known worse from the data than from the configuration should have stayed fixed.
+POOR_RELATIVE_UNCERTAINTY = 0.10
+#: Fewer residual lags than this fraction inside their 99 % band (pre-whitened residual, 25
+#: autocorrelation lags or 51 input cross-correlation lags) is reported: for white residuals
+#: independent of the input about 1 % of the lags fall outside, so a fifth is far beyond
+#: chance. Measured on the 3 s trajectory of ``test_ident_balance_fit.py``: 100 % on every
+#: section of a right fit; input correlation 0 % for a coil chirp fitted with the mass matrix
+#: fixed 5 % off (fit 89 %).
+RESIDUAL_TEST_FRACTION = 0.8
 
 
 def check(fit: GreyboxResult, specs: Sequence[ParameterSpec], fd: Optional[Any],
@@ -68,6 +84,16 @@ def check(fit: GreyboxResult, specs: Sequence[ParameterSpec], fd: Optional[Any],
                                     f'(a usable model fits at least {FIT_FAILURE_PERCENT:g} %)')
         elif worst < FIT_WARNING_PERCENT:
             verdict.warnings.append(f'greybox: section {sec.name!r} fits only {worst:.2f} %')
+    for sec in fit.sections:
+        if not sec.residual_tested.startswith('noise-weighted'):
+            continue        # the raw output error is coloured process noise: never white
+        for what, value in (('white (autocorrelation)', sec.whiteness_fraction),
+                            ('uncorrelated with the inputs', sec.input_correlation_fraction)):
+            if value < RESIDUAL_TEST_FRACTION:
+                verdict.warnings.append(
+                    f'greybox: section {sec.name!r}: the pre-whitened residual is '
+                    f'{what} at only {100 * value:.0f} % of the lags (a right model: about '
+                    f'99 %): the model misses part of the response')
     if not fit.moved():
         verdict.failures.append('greybox: the optimiser never left its start '
                                 f'({fit.exit_reason})')
@@ -176,3 +202,45 @@ def _entries(mech: Any, setting: Setting) -> np.ndarray:
     m = mass_matrix(np.zeros(2), loaded(mech, setting.load_mass_kg,
                                         setting.load_changer_coupled))
     return np.array([m[0, 0], m[0, 1], m[1, 1]])
+
+
+def check_uncertainties(fit: GreyboxResult, mass_relative_uncertainty: float,
+                        verdict: Verdict, skip: Sequence[str] = ()) -> None:
+    """
+    Warn about free parameters the fitted sections determine poorly.
+
+    A free stiffness or damping with a relative standard uncertainty above
+    :data:`POOR_RELATIVE_UNCERTAINTY`, or a free mass-matrix entry (or mass) above
+    ``mass_relative_uncertainty`` (when that is > 0, else the same 10 %), is reported: the
+    number is honest (its uncertainty says so), but the experiment does not determine it.
+
+    Parameters
+    ----------
+    fit : GreyboxResult
+        The time-domain fit (its standard errors).
+    mass_relative_uncertainty : float
+        The configured masses' relative standard uncertainty.
+    verdict : Verdict
+        Collects the warnings.
+    skip : sequence of str
+        Free parameters not checked (the rest position: an offset, not relative).
+    """
+    for name in fit.free_names:
+        if name in skip:
+            continue
+        value, se = fit.parameters[name], fit.standard_errors.get(name, math.nan)
+        if value == 0.0:
+            continue
+        rel = abs(se / value) if math.isfinite(se) else math.inf
+        mass = name in MASS_MATRIX_NAMES or name in MASS_PARAMETERS
+        limit = mass_relative_uncertainty if mass and mass_relative_uncertainty > 0.0 \
+            else POOR_RELATIVE_UNCERTAINTY
+        if rel > limit:
+            what = ('known worse from these data than the configured masses '
+                    f'({100 * limit:g} %)') if mass and limit != POOR_RELATIVE_UNCERTAINTY \
+                else f'above {100 * limit:g} %: these sections do not determine it'
+            verdict.warnings.append(
+                f'greybox: {name} is poorly determined: standard uncertainty '
+                f'{100 * rel:.3g} % of its value, {what}; add sections that excite it (the '
+                f'identifiability section of the report says which combinations are weak) '
+                f'or fix it (greybox.free)')

@@ -15,8 +15,9 @@ run's identification.
 Pan load and load-changer coupling, never a silent default, from the first that has them:
 the options given, the bag's ``emfc_ros.plant_configuration`` (the runner: the plan's mass
 pieces), the measurement description's ``extra`` (a daq_bridge told the pan load), the
-recorded node parameters (a plant simulator). Without any, :class:`PlantConfigurationError`
-names the option to give.
+recorded node parameters (a plant simulator). Without any,
+:class:`~emfc_ros.core.ident.plant.PlantConfigurationError` names the option to give (the
+resolution is shared with the identifier node's live path: :mod:`emfc_ros.core.ident.plant`).
 
 Measurements recorded through the daq_bridge are on the device's sample clock: excitation
 sample ``k`` was applied at device sample ``k + offset``, the offset published in the
@@ -32,17 +33,16 @@ from typing import Any, Callable, Dict, Mapping, Optional, Tuple
 import yaml
 
 from emfc_ros.core.bag import custom_data, read_streams
+from emfc_ros.core.ident import plant
 from emfc_ros.core.ident.errors import IdentificationError
+# PlantConfigurationError: raised here and imported from here by the callers
+from emfc_ros.core.ident.plant import (plant_entries, PLANT_KEYS,  # noqa: F401
+                                       PlantConfigurationError)
 from emfc_ros.core.safe_yaml import load_yaml_text, YamlRefused
 
 Progress = Callable[[str, float, str], None]
-PLANT_KEYS = ('load_mass_kg', 'load_changer_coupled')
 OPTIONS_KEY = 'emfc_ros.identification_options'
 PLANT_KEY = 'emfc_ros.plant_configuration'
-
-
-class PlantConfigurationError(IdentificationError):
-    """The pan load (or the load-changer coupling) of a recording is not known."""
 
 
 def _yaml_mapping(text: str) -> Dict[str, Any]:
@@ -93,10 +93,23 @@ def merged_options(base: Mapping[str, Any], override: Mapping[str, Any]) -> Dict
     return out
 
 
+#: How a user of ``emfc-identify`` gives the pan load and the coupling.
+CLI_HOW_TO_GIVE = {
+    'load_mass_kg': '`emfc-identify --load-mass-kg KG` (or `load_mass_kg` in the --options '
+                    'file)',
+    'load_changer_coupled': '`emfc-identify --load-changer-coupled true|false` (or '
+                            '`load_changer_coupled` in the --options file)'}
+
+
 def resolve_plant(bag_path: Path, options: Mapping[str, Any], measurements: Any = None
                   ) -> Tuple[Dict[str, Any], str]:
     """
     Pan load and load-changer coupling of a recording, and where they come from.
+
+    The sources in order (:func:`emfc_ros.core.ident.plant.resolve_plant` takes each setting
+    from the first that has it): the options given, the bag's custom data
+    ``emfc_ros.plant_configuration``, the measurement description's ``extra``, the recorded
+    node parameters.
 
     Parameters
     ----------
@@ -121,33 +134,14 @@ def resolve_plant(bag_path: Path, options: Mapping[str, Any], measurements: Any 
     """
     description = getattr(measurements, 'description', None)
     extra = description.extra if description is not None else {}
-    sources = [('options', {k: options[k] for k in PLANT_KEYS if k in options})]
     stored = _yaml_mapping(custom_data(bag_path).get(PLANT_KEY, ''))
-    sources.append((f'bag custom data {PLANT_KEY}'
-                    + (f' ({stored["source"]})' if stored.get('source') else ''),
-                    {k: stored[k] for k in PLANT_KEYS if k in stored}))
-    sources.append(('measurement description (extra)',
-                    {k: extra[k] for k in PLANT_KEYS if extra.get(k) is not None}))
-    sources.append(('recorded node parameters', plant_settings(bag_path)))
-    settings: Dict[str, Any] = {}
-    where: Dict[str, str] = {}
-    for name, found in sources:
-        for key in PLANT_KEYS:
-            if key not in settings and key in found:
-                settings[key], where[key] = found[key], name
-    if 'load_mass_kg' not in settings:
-        raise PlantConfigurationError(
-            'the pan load of this recording is unknown (no load_mass_kg in the bag custom '
-            f'data {PLANT_KEY}, the measurement description or the recorded node parameters): '
-            'give it with `emfc-identify --load-mass-kg KG` (or `load_mass_kg` in the '
-            '--options file); the grey-box model is not identified with a guessed load')
-    if 'load_changer_coupled' not in settings:
-        raise PlantConfigurationError(
-            'whether the load changer rode on the pan is unknown for this recording: give it '
-            'with `emfc-identify --load-changer-coupled true|false` (or '
-            '`load_changer_coupled` in the --options file)')
-    text = '; '.join(f'{k} from {v}' for k, v in where.items())
-    return settings, text
+    sources = [('options', plant_entries(options)),
+               (f'bag custom data {PLANT_KEY}'
+                + (f' ({stored["source"]})' if stored.get('source') else ''),
+                plant_entries(stored)),
+               ('measurement description (extra)', plant_entries(extra)),
+               ('recorded node parameters', plant_settings(bag_path))]
+    return plant.resolve_plant(sources, CLI_HOW_TO_GIVE)
 
 
 def find_namespace(topics: Mapping[str, Any], namespace: Optional[str] = None) -> str:

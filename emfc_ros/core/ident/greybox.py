@@ -155,12 +155,17 @@ class SectionFit:
         MATLAB ``compare`` fit per output [%].
     whiteness_fraction : float
         Fraction of residual autocorrelation lags 1..25 inside the 99 % band (mean over
-        outputs).
+        outputs), of the residual named by ``residual_tested``.
     input_correlation_fraction : float
         Fraction of residual-input cross-correlation lags -25..25 inside the 99 % band (mean
-        over input-output pairs; NaN for constant inputs).
+        over input-output pairs; NaN for constant inputs), same residual.
     rms_error : ndarray
         Root-mean-square of ``y - y_hat`` per output.
+    residual_tested : str
+        ``'noise-weighted'`` when the fit weighted the output error by the inverse noise
+        spectrum (then the tests see that weighted, pre-whitened residual, with the noise
+        transient projected out: what the fit treats as white), ``'raw'`` otherwise (the
+        output error ``y - y_hat`` itself).
     """
 
     name: str
@@ -168,6 +173,7 @@ class SectionFit:
     whiteness_fraction: float
     input_correlation_fraction: float
     rms_error: np.ndarray
+    residual_tested: str = 'raw'
 
 
 @dataclass(frozen=True)
@@ -285,12 +291,7 @@ class _Problem:
         if transients is not None and self.noise_weights is not None:
             self.transient_q = []
             for g, w in zip(transients, self.noise_weights):
-                if g is None or np.size(g) == 0:
-                    self.transient_q.append(None)
-                    continue
-                gw = np.asarray(g, dtype=complex).reshape(w.size, -1) * w[:, None]
-                q, _ = np.linalg.qr(np.vstack((gw.real, gw.imag)))
-                self.transient_q.append(q)
+                self.transient_q.append(weighted_transient_basis(g, w))
         self.specs = list(specs)
         self.free = [s for s in self.specs if s.free]
         self.sections = []
@@ -538,25 +539,85 @@ def _central_jacobian(fun: Callable[[np.ndarray], np.ndarray], x: np.ndarray,
     return np.column_stack(columns)
 
 
+def weighted_transient_basis(transient: Optional[np.ndarray], weights: np.ndarray
+                             ) -> Optional[np.ndarray]:
+    """
+    Orthonormal basis of a section's weighted transient term (real and imaginary stacked).
+
+    Parameters
+    ----------
+    transient : ndarray or None
+        Complex basis of shape (lines, q) (see :func:`fit_greybox`'s ``transients``).
+    weights : ndarray
+        The section's noise weights (lines).
+
+    Returns
+    -------
+    ndarray or None
+        Shape (2 lines, q); None without a transient.
+    """
+    if transient is None or np.size(transient) == 0:
+        return None
+    gw = np.asarray(transient, dtype=complex).reshape(weights.size, -1) * weights[:, None]
+    q, _ = np.linalg.qr(np.vstack((gw.real, gw.imag)))
+    return q
+
+
+def prewhitened(err: np.ndarray, weights: np.ndarray,
+                q: Optional[np.ndarray] = None) -> np.ndarray:
+    """
+    The output error as the noise-weighted fit sees it, back in the time domain.
+
+    ``irfft(W(k) E(k))`` with the transient term projected out: for a right model and a right
+    noise model a white sequence (the maximum-likelihood criterion's assumption), so the
+    residual tests are meaningful; the raw output error of the balance is dominated by
+    process noise ringing at the low mode and is never white.
+
+    Parameters
+    ----------
+    err : ndarray, shape (n,)
+        Output error ``y - y_hat``.
+    weights : ndarray, shape (n // 2 + 1,)
+        The fit's whitening weights.
+    q : ndarray, optional
+        Orthonormal basis of the weighted transient term (real and imaginary parts stacked).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        The pre-whitened residual (arbitrary scale).
+    """
+    e = np.fft.rfft(err) * weights
+    if q is not None:
+        stacked = np.concatenate((e.real, e.imag))
+        stacked = stacked - q @ (q.T @ stacked)
+        e = stacked[:e.size] + 1j * stacked[e.size:]
+    return np.fft.irfft(e, err.size)
+
+
 def _section_fits(problem: _Problem, theta: np.ndarray, max_lag: int) -> Tuple[SectionFit, ...]:
     outs = problem.outputs(theta)
     fits = []
-    for yh, (sec, y, _) in zip(outs, problem.sections):
+    weights = problem.noise_weights or [None] * len(problem.sections)
+    qs = problem.transient_q or [None] * len(problem.sections)
+    for yh, (sec, y, _), nw, q in zip(outs, problem.sections, weights, qs):
         y2, yh2 = y.reshape(y.shape[0], -1), yh.reshape(y.shape[0], -1)
         u2 = np.asarray(sec.inputs, dtype=float).reshape(y.shape[0], -1)
         err = y2 - yh2
+        tested = err if nw is None else prewhitened(err[:, 0], nw, q)[:, None]
         white, cross = [], []
         for c in range(err.shape[1]):
             if y.shape[0] >= max_lag + 2 and np.any(err[:, c] != err[0, c]):
-                white.append(whiteness_test(err[:, c], max_lag).fraction_inside)
+                white.append(whiteness_test(tested[:, c], max_lag).fraction_inside)
                 for j in range(u2.shape[1]):
                     if np.ptp(u2[:, j]) > 0.0:
-                        cross.append(input_correlation_test(err[:, c], u2[:, j],
+                        cross.append(input_correlation_test(tested[:, c], u2[:, j],
                                                             max_lag).fraction_inside)
         fits.append(SectionFit(sec.name, np.atleast_1d(fit_percent(y2, yh2)),
                                float(np.mean(white)) if white else float('nan'),
                                float(np.mean(cross)) if cross else float('nan'),
-                               np.sqrt(np.mean(err ** 2, axis=0))))
+                               np.sqrt(np.mean(err ** 2, axis=0)),
+                               'raw' if nw is None else 'noise-weighted'))
     return tuple(fits)
 
 

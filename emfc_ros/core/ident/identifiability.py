@@ -50,6 +50,8 @@ class Identifiability:
         ``s_max / s_min`` (inf when rank deficient).
     rank : int
         Directions determined better than the threshold.
+    threshold : float
+        That threshold (relative standard uncertainty of a direction).
     """
 
     names: Tuple[str, ...]
@@ -59,6 +61,7 @@ class Identifiability:
     correlation: np.ndarray
     condition_number: float
     rank: int
+    threshold: float = MAX_RELATIVE_UNCERTAINTY
 
     def combination(self, index: int, min_weight: float = 0.1) -> str:
         """
@@ -91,7 +94,7 @@ class Identifiability:
         -------
         dict
             Names, singular values, relative uncertainties, directions, condition number,
-            rank and correlation matrix.
+            rank (with its threshold), the undetermined directions and the correlation matrix.
         """
         return {'names': list(self.names),
                 'singular_values': [float(v) for v in self.singular_values],
@@ -99,6 +102,12 @@ class Identifiability:
                                                       for v in self.relative_uncertainty],
                 'directions': [self.combination(i) for i in range(len(self.names))],
                 'condition_number': float(self.condition_number), 'rank': int(self.rank),
+                'rank_threshold_relative_uncertainty': float(self.threshold),
+                'not_determined': [
+                    {'combination': self.combination(i),
+                     'relative_uncertainty': float(self.relative_uncertainty[i])}
+                    for i in range(len(self.names))
+                    if not self.relative_uncertainty[i] <= self.threshold],
                 'correlation': np.asarray(self.correlation).tolist()}
 
 
@@ -134,7 +143,60 @@ def analyse(jacobian: np.ndarray, names: Sequence[str], magnitudes: Sequence[flo
         corr = cov / np.outer(sd, sd)
     cond = float(s[0] / s[-1]) if s[-1] > 0.0 else float('inf')
     rank = int(np.count_nonzero(rel <= max_relative_uncertainty))
-    return Identifiability(tuple(names), s, vt, rel, corr, cond, rank)
+    return Identifiability(tuple(names), s, vt, rel, corr, cond, rank,
+                           float(max_relative_uncertainty))
+
+
+def analyse_covariance(covariance: np.ndarray, names: Sequence[str],
+                       magnitudes: Sequence[float],
+                       max_relative_uncertainty: float = MAX_RELATIVE_UNCERTAINTY
+                       ) -> Identifiability:
+    """
+    The same analysis from a fit's covariance (e.g. the time-domain fit's sandwich).
+
+    The covariance in relative variables ``C_rel = C / (m m^T)`` has the eigen-decomposition
+    ``V diag(l) V^T``; ``1 / sqrt(l_i)`` plays the role of the singular values of the relative
+    Jacobian (exactly so when ``C = (J^T J)^-1``): direction ``v_i`` is determined to a relative
+    standard uncertainty ``sqrt(l_i)``. This is what the final estimate says about
+    identifiability, for the sections and inputs the fit used and whatever covariance it
+    computed (coloured noise included).
+
+    Parameters
+    ----------
+    covariance : ndarray, shape (p, p)
+        Covariance in natural units.
+    names : sequence of str
+        Parameter names, its order.
+    magnitudes : sequence of float
+        Typical magnitude of each parameter (the estimates).
+    max_relative_uncertainty : float
+        Threshold of a determined direction.
+
+    Returns
+    -------
+    Identifiability
+        The analysis (best-determined direction first).
+    """
+    scales = np.array([abs(float(m)) or 1.0 for m in magnitudes])
+    cov = np.asarray(covariance, dtype=float)
+    finite = np.all(np.isfinite(cov))
+    rel = cov / np.outer(scales, scales) if finite else np.full_like(cov, np.inf)
+    if finite:
+        w, v = np.linalg.eigh(0.5 * (rel + rel.T))
+        w = np.maximum(w, 0.0)
+    else:
+        w, v = np.full(len(names), np.inf), np.eye(len(names))
+    order = np.argsort(w)
+    unc = np.sqrt(w[order])
+    with np.errstate(divide='ignore'):
+        s = np.where(unc > 0.0, 1.0 / unc, np.inf)
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    with np.errstate(divide='ignore', invalid='ignore'):
+        corr = cov / np.outer(sd, sd)
+    cond = float(s[0] / s[-1]) if np.isfinite(s[0]) and s[-1] > 0.0 else float('inf')
+    rank = int(np.count_nonzero(unc <= max_relative_uncertainty))
+    return Identifiability(tuple(names), s, v[:, order].T, unc, corr, cond, rank,
+                           float(max_relative_uncertainty))
 
 
 @dataclass

@@ -39,6 +39,7 @@ from emfc_ros.core.ident.frf import estimate_frf, FrequencyResponseData
 from emfc_ros.core.ident.local_polynomial import local_polynomial_frf
 from emfc_ros.core.ident.mimo import estimate_two_input_frf
 from emfc_ros.core.ident.pipeline_config import IdentificationConfig
+from emfc_ros.core.ident.plant import PLANT_KEYS, PlantConfigurationError
 from emfc_ros.core.ident.static_fit import fit_polynomial, PolynomialFit, with_std_floor
 from emfc_ros.core.ident.tf_fit import OrderSelection, select_order
 
@@ -181,7 +182,8 @@ class IdentificationResult:
     timings_s : dict of str to float
         Wall time per step [s].
     plant_source : str
-        Where the pan load and the load-changer coupling came from.
+        Where the pan load and the load-changer coupling came from (set by the caller that
+        resolved them; ``'identification options'`` when they were given there).
     """
 
     sample_rate_Hz: float
@@ -249,8 +251,12 @@ class IdentificationResult:
             'frequency_responses': [_frf_dict(r) for r in self.frfs],
             'static_characteristics': _static_dict(self.static),
             'greybox': greybox_dict(self.greybox),
-            'model_parameters': (parameter_table(self.greybox)
-                                 if self.greybox is not None else None),
+            'model_parameters': (parameter_table(
+                self.greybox, self.config.balance,
+                {'load_mass_kg': self.config.load_mass_kg,
+                 'load_changer_coupled': self.config.load_changer_coupled,
+                 'source': self.plant_source})
+                if self.greybox is not None else None),
             'warnings': list(self.warnings),
             'timings_s': dict(self.timings_s),
             'pipeline_config': self.config.to_dict(),
@@ -289,6 +295,10 @@ def identify(recording: Any, experiment_sections: Sequence[Any],
 
     Raises
     ------
+    PlantConfigurationError
+        If the grey-box step is enabled and the configuration does not give the pan load
+        (``load_mass_kg``) or the load-changer coupling (``load_changer_coupled``): the model
+        is never identified with a guessed load.
     IdentificationError
         If channels are missing or inconsistent, or the section table does not fit.
     ConfigError
@@ -299,8 +309,18 @@ def identify(recording: Any, experiment_sections: Sequence[Any],
     channels, fs = _channels(recording, sample_rate_Hz)
     n = channels['position_m'].size
     spans = _spans(experiment_sections, n)
+    missing = [k for k in PLANT_KEYS if getattr(cfg, k) is None]
+    if cfg.greybox.enabled and missing:
+        raise PlantConfigurationError(
+            f'the identification options do not give {" and ".join(missing)}: the grey-box '
+            f'model needs the mass on the pan and whether the load changer rode on it, and is '
+            f'not identified with a guessed load; give `load_mass_kg: KG` and '
+            f'`load_changer_coupled: true|false` (or set greybox.enabled: false)')
     report = progress if progress is not None else (lambda step, fraction, message: None)
     result = IdentificationResult(fs, n, spans, cfg)
+    if missing:
+        result.plant_source = ('not given (not needed: the grey-box step, the only one that '
+                               'uses it, is disabled)')
     by_name = {s.name: s for s in spans}
     forces = _forces(channels, cfg)
 
@@ -675,12 +695,13 @@ def _greybox_step(result: IdentificationResult, channels: Mapping[str, np.ndarra
     if not chosen:
         result.failures.append('greybox: no section to fit')
         return
-    by_name = {s.name: s for s in spans}
-    jobs = [(n, by_name[n].first_sample_index, by_name[n].n_samples, inputs)
-            for group, inputs in ((cfg.frf.coil_sections, ['coil']),
-                                  (cfg.frf.pan_sections, ['pan']),
-                                  (cfg.frf.two_input_sections, ['coil', 'pan']))
-            for n in group if n in by_name]
+    jobs = greybox_frf_jobs(cfg, chosen)
+    unlisted = [s.name for s in chosen if s.name not in {j[0] for j in jobs}]
+    if unlisted:
+        result.warnings.append(
+            f'greybox: sections {unlisted} are in none of frf.coil_sections, '
+            f'frf.pan_sections, frf.two_input_sections: the start and the identifiability '
+            f'analysis do not see them (the time-domain fit does)')
     modes, anti = modal_features(result)
     setting = Setting(cfg.balance.with_mechanics(**gcfg.initial), cfg.load_mass_kg,
                       cfg.load_changer_coupled, result.sample_rate_Hz)
@@ -701,6 +722,36 @@ def _greybox_step(result: IdentificationResult, channels: Mapping[str, np.ndarra
                                                     channels['load_changer_setpoint_V'][s.slice]))
     result.greybox = out
     report('greybox', 1.0, f'grey-box fit done ({out.fit.optimizer_evaluations} evaluations)')
+
+
+def greybox_frf_jobs(cfg: IdentificationConfig, chosen: Sequence[Span]
+                     ) -> List[Tuple[str, int, int, List[str]]]:
+    """
+    The grey-box's own sections with the inputs each excites (from the FRF section lists).
+
+    The frequency-domain stage (start, identifiability, second start) sees exactly the
+    sections and inputs the time-domain fit is given, so that the Fisher information is that
+    of the experiment fitted: with ``greybox.sections: [coil_chirp]`` only the coil response,
+    which does not separate the mass matrix (issue 12, audit).
+
+    Parameters
+    ----------
+    cfg : IdentificationConfig
+        The configuration (``frf.*_sections`` say which inputs a section excites).
+    chosen : sequence of Span
+        The sections the grey-box fits.
+
+    Returns
+    -------
+    list of (str, int, int, list of str)
+        ``(name, first_sample_index, n_samples, inputs)``, inputs ``'coil'`` and/or ``'pan'``.
+    """
+    by_name = {s.name: s for s in chosen}
+    return [(n, by_name[n].first_sample_index, by_name[n].n_samples, inputs)
+            for group, inputs in ((cfg.frf.coil_sections, ['coil']),
+                                  (cfg.frf.pan_sections, ['pan']),
+                                  (cfg.frf.two_input_sections, ['coil', 'pan']))
+            for n in group if n in by_name]
 
 
 def modal_features(result: IdentificationResult

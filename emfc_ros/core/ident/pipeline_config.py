@@ -16,6 +16,7 @@ from emfc_ros.core.config import (get_bool, get_float, get_float_list, get_int, 
 from emfc_ros.core.errors import ConfigError
 from emfc_ros.core.ident.balance_greybox import DEFAULT_FREE, mechanical_names
 from emfc_ros.core.model.parameters import BalanceParameters
+from emfc_ros.core.pan_load import MAX_LOAD_MASS_KG
 
 FRF_METHODS = ('lpm', 'welch')
 HOLDS = ('zoh', 'foh', 'none')
@@ -181,10 +182,12 @@ class IdentificationConfig:
 
     Attributes
     ----------
-    load_mass_kg : float
-        Mass on the pan during the experiment [kg] (sets the model's configuration).
-    load_changer_coupled : bool
-        Whether the load changer's moving mass rode on the pan.
+    load_mass_kg : float or None
+        Mass on the pan during the experiment [kg] (sets the model's configuration). None:
+        not given; the grey-box step then refuses to run (never a silent 0 kg), see
+        :func:`~emfc_ros.core.ident.pipeline.identify`.
+    load_changer_coupled : bool or None
+        Whether the load changer's moving mass rode on the pan (None: not given, as above).
     frf, tf_fit, static, greybox
         The steps.
     balance : BalanceParameters
@@ -192,8 +195,8 @@ class IdentificationConfig:
         partial overrides of the defaults).
     """
 
-    load_mass_kg: float = 0.0
-    load_changer_coupled: bool = True
+    load_mass_kg: Optional[float] = None
+    load_changer_coupled: Optional[bool] = None
     frf: FrfConfig = field(default_factory=FrfConfig)
     tf_fit: TfFitConfig = field(default_factory=TfFitConfig)
     static: StaticConfig = field(default_factory=StaticConfig)
@@ -233,11 +236,13 @@ class IdentificationConfig:
         if 'balance' in cfg:
             balance = BalanceParameters.from_mapping(get_mapping(cfg, 'balance', path),
                                                      join(path, 'balance'), base=balance)
+        given = {k: v for k, v in cfg.items() if v is not None}    # null: not given
         return cls(
-            load_mass_kg=get_float(cfg, 'load_mass_kg', path, default=d.load_mass_kg,
-                                   minimum=0.0, maximum=100.0),
-            load_changer_coupled=get_bool(cfg, 'load_changer_coupled', path,
-                                          default=d.load_changer_coupled),
+            load_mass_kg=(get_float(given, 'load_mass_kg', path, minimum=0.0,
+                                    maximum=MAX_LOAD_MASS_KG)
+                          if 'load_mass_kg' in given else None),
+            load_changer_coupled=(get_bool(given, 'load_changer_coupled', path)
+                                  if 'load_changer_coupled' in given else None),
             frf=_frf(get_mapping(cfg, 'frf', path, default={}), join(path, 'frf')),
             tf_fit=_tf_fit(get_mapping(cfg, 'tf_fit', path, default={}),
                            join(path, 'tf_fit')),

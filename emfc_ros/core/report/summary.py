@@ -19,6 +19,14 @@ def _pm(value: Optional[float], std: Optional[float], digits: int = 5) -> str:
     return f'{value:.{digits}g} +/- {std:.2g}'
 
 
+def _value_text(value: Any) -> str:
+    if isinstance(value, bool) or value is None:
+        return {True: 'true', False: 'false', None: 'not given'}[value]
+    if isinstance(value, (list, tuple)):
+        return '[' + ', '.join(f'{v:.6g}' for v in value) + ']'
+    return f'{value:.6g}'
+
+
 def _modes_text(modes: Sequence[Mapping[str, Any]]) -> str:
     return '; '.join(f'{_pm(m["frequency_Hz"], m["frequency_std_Hz"])} '
                      f'({_pm(m["damping_ratio"], m["damping_ratio_std"], 4)})'
@@ -52,12 +60,15 @@ def summary_markdown(result: Any, plots: Sequence[str] = (),
                 'apply).' if status['success'] else
                 '**Identification FAILED**: ' + '; '.join(status['failures'])
                 + '. The numbers below are what the fit reached, not a usable model.')
-    source = d['configuration'].get('source')
+    conf = d['configuration']
+    source = conf.get('source')
+    load = conf.get('load_mass_kg')
+    coupled = conf.get('load_changer_coupled')
     lines = ['# Identification of the EMFC balance', '', headline, '',
              f'Recording: {d["n_samples"]} samples at {d["sample_rate_Hz"]:g} Hz '
              f'({d["duration_s"]:.3g} s), {len(d["sections"])} sections; load on the pan '
-             f'{d["configuration"]["load_mass_kg"]:.6g} kg, load changer '
-             f'{"coupled" if d["configuration"]["load_changer_coupled"] else "not coupled"}'
+             + ('not given' if load is None else f'{load:.6g} kg') + ', load changer '
+             + {True: 'coupled', False: 'not coupled', None: 'coupling not given'}[coupled]
              + (f' ({source})' if source else '') + '.',
              '', 'Steps run: ' + (', '.join(f'{k} ({v:.2f} s)' for k, v in
                                             d['timings_s'].items()) or 'none') + '.', '']
@@ -112,8 +123,8 @@ def summary_markdown(result: Any, plots: Sequence[str] = (),
             lines.append(f'| {name} | {p["value"]:.6g} | '
                          f'{"n/a" if se is None else f"{se:.2g}"} | '
                          f'{"derived" if start is None else f"{start:.6g}"} | {p["unit"]} |')
-        lines += ['', '| section | fit [%] | rms error [nm] | residual whiteness | '
-                  'residual-input uncorrelated |', '|---|---|---|---|---|']
+        lines += ['', '| section | fit [%] | rms error [nm] | residual white [% of lags] | '
+                  'residual-input uncorrelated [% of lags] |', '|---|---|---|---|---|']
         for s in g['sections']:
             white = s['whiteness_fraction']
             cross = s['input_correlation_fraction']
@@ -121,11 +132,14 @@ def summary_markdown(result: Any, plots: Sequence[str] = (),
                          f'{1e9 * s["rms_error_m"]:.3g} | '
                          f'{"n/a" if white is None else f"{100 * white:.0f} %"} | '
                          f'{"n/a" if cross is None else f"{100 * cross:.0f} %"} |')
+        lines += [''] + residual_test_note(g['sections'])
         lin = g['linearised_model']
         poles = ', '.join(f'{p["frequency_Hz"]:.5g} Hz (zeta {p["damping_ratio"]:.4g})'
                           for p in lin['poles'][::2])
         zeros = ', '.join(f'{z["signed_frequency_Hz"]:.5g} Hz' for z in lin['zeros_coil'][::2])
         lines += ['', f'Linearised fitted model: poles {poles}; coil zeros {zeros}.', '']
+    if g:
+        lines += identifiability_lines(g)
     lines += model_parameter_lines(d.get('model_parameters'))
     if plots:
         lines += ['## Plots', ''] + [f'- [{p}]({p})' for p in plots] + ['']
@@ -140,6 +154,92 @@ def summary_markdown(result: Any, plots: Sequence[str] = (),
     lines += ['## Warnings', ''] + ([f'- {w}' for w in warn] if warn else ['- none']) + ['']
     lines += ['All numbers with units and uncertainties are in `results.yaml`.', '']
     return '\n'.join(lines)
+
+
+def residual_test_note(sections: Sequence[Mapping[str, Any]]) -> list:
+    """
+    What the two residual columns mean.
+
+    Parameters
+    ----------
+    sections : sequence of mapping
+        ``results.yaml``'s ``greybox.sections``.
+
+    Returns
+    -------
+    list of str
+        Markdown lines.
+    """
+    tested = {s.get('residual_tested', 'raw') for s in sections}
+    if all(t.startswith('noise-weighted') for t in tested):
+        return ['The residual columns test the **pre-whitened** residual: the output error '
+                'divided by a smooth noise model estimated from the final residual (the '
+                'physical shapes |H_coil|^2, |H_pan|^2 and a white floor, corrected over +/-25 '
+                '% of the frequency; the transient at the section ends projected out), which '
+                'is what the noise-weighted fit treats as white. Each column is the share of '
+                'the lags (autocorrelation 1..25, cross-correlation with each input -25..25) '
+                'inside the 99 % band 2.576/sqrt(N): about 99 % for a right model. A low '
+                '"uncorrelated" share means the model misses part of the input\'s effect; the '
+                'raw output error is process noise ringing at the low mode, never white, and '
+                'is not tested.', '']
+    return ['The residual columns test the raw output error y - y_hat (the fit was not '
+            'noise-weighted): the share of the lags (autocorrelation 1..25, cross-correlation '
+            'with each input -25..25) inside the 99 % band 2.576/sqrt(N). On the balance the '
+            'output error is dominated by process noise ringing at the low mode, so a low '
+            'whiteness share is expected and says little about the model; the parameter '
+            'uncertainties come from the sandwich covariance, which does not assume white '
+            'residuals.', '']
+
+
+def identifiability_lines(g: Mapping[str, Any]) -> list:
+    """
+    What the fitted sections determine: rank, condition, inseparable combinations, fixed.
+
+    Parameters
+    ----------
+    g : mapping
+        ``results.yaml``'s ``greybox``.
+
+    Returns
+    -------
+    list of str
+        Markdown lines (none without an analysis).
+    """
+    ident = g.get('identifiability')
+    td = g.get('time_domain_identifiability')
+    if not ident and not td:
+        return []
+    names = ', '.join(s['name'] for s in g.get('sections', []))
+    lines = ['## Identifiability (what the fitted sections determine)', '',
+             f'Fisher information of the grey-box model on the sections it fits ({names}), '
+             'in relative variables: a direction (a combination of relative parameter '
+             'changes) counts as determined when its relative standard uncertainty is below '
+             'the threshold given.', '']
+
+    def summary(label: str, a: Mapping[str, Any]) -> None:
+        lines.append(f'- {label}: {", ".join(a["names"])}: rank {a["rank"]} of '
+                     f'{len(a["names"])} (threshold '
+                     f'{100 * a.get("rank_threshold_relative_uncertainty", 0.3):.3g} %), '
+                     f'condition number {a["condition_number"]:.3g}.')
+        for u in a.get('not_determined', []):
+            rel = u['relative_uncertainty']
+            shown = f'{100 * rel:.3g} %' if rel is not None else 'not at all'
+            lines.append(f'  - not determined: `{u["combination"]}` (to {shown})')
+
+    if ident:
+        summary('requested, frequency domain at the start', ident['requested'])
+        if ident['fixed']:
+            summary('left free', ident['free'])
+            lines.append('- fixed on purpose at the configured values:')
+            lines += [f'  - {n}: {why}' for n, why in ident['fixed'].items()]
+        else:
+            lines.append('- nothing fixed: the data determine every requested parameter '
+                         'the analysis may fix (masses and inertias; stiffnesses and '
+                         'dampings always stay free, their uncertainty says how well they '
+                         'are known).')
+    if td:
+        summary('time-domain fit (its sandwich covariance)', td)
+    return lines + ['']
 
 
 def model_parameter_lines(rows: Optional[Sequence[Mapping[str, Any]]]) -> list:
@@ -169,7 +269,7 @@ def model_parameter_lines(rows: Optional[Sequence[Mapping[str, Any]]]) -> list:
         if r.get('note'):
             notes.append(f'{r["name"]}: {r["note"]}.')
             mark = f' [{len(notes)}]'
-        lines.append(f'| {r["name"]}{mark} | {r["value"]:.6g} | '
+        lines.append(f'| {r["name"]}{mark} | {_value_text(r["value"])} | '
                      f'{"" if se is None else f"{se:.2g}"} | {r["unit"]} | {r["status"]} | '
                      f'{r["source"]} |')
     lines.append('')

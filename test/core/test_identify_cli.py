@@ -1,0 +1,87 @@
+"""
+``emfc-identify BAG`` as a user types it, on bags of a drawn balance: good and broken on purpose.
+
+The bags are written with the project's bag writer (``test/ident_bags.py``) from off-nominal
+recordings (:mod:`emfc_ros.core.ident.offnominal`, a test seed, 3 s sections); the measurement
+description carries the pan load as a plant simulator publishes it. A failed fit exits with 1,
+its report written and its headline saying FAILED.
+"""
+
+from pathlib import Path
+import shutil
+import subprocess
+import sys
+
+import pytest
+import yaml
+
+from emfc_ros.core.ident.balance_experiment import time_scaled_mapping
+from emfc_ros.core.ident.offnominal import (draw_balance, record_draw, TEST_SEEDS,
+                                            with_noise_position, with_position_gain)
+from emfc_ros.core.paths import config_file
+from emfc_ros.core.signals import experiment_from_config, find_experiment_mapping
+import ident_bags
+
+SEED = TEST_SEEDS[3]
+
+
+def _cli() -> str:
+    return shutil.which('emfc-identify') or str(Path(sys.executable).parent / 'emfc-identify')
+
+
+@pytest.fixture(scope='module')
+def record():
+    doc = yaml.safe_load(config_file('identification_trajectory.yaml').read_text())
+    exp = experiment_from_config(time_scaled_mapping(find_experiment_mapping(doc), 0.3))
+    return record_draw(draw_balance(SEED), SEED, experiment=exp, draw_seed=SEED)
+
+
+def bag_of(record, folder: Path) -> Path:
+    rec = record.recording
+    return ident_bags.write_experiment_bag(folder / 'bag', rec.channels, rec.sample_rate_Hz,
+                                           record.section_table,
+                                           extra={'load_mass_kg': record.known_load_mass_kg,
+                                                  'load_changer_coupled':
+                                                      record.load_changer_coupled,
+                                                  'time_mode': 'simulated'})
+
+
+def identify(bag: Path, out: Path, *extra: str) -> subprocess.CompletedProcess:
+    return subprocess.run([_cli(), str(bag), '-o', str(out), *extra], capture_output=True,
+                          text=True, timeout=600)
+
+
+@pytest.mark.slow
+def test_an_intact_bag_is_identified(record, tmp_path):
+    done = identify(bag_of(record, tmp_path), tmp_path / 'out')
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    results = yaml.safe_load((tmp_path / 'out' / 'results.yaml').read_text())
+    assert results['status']['success'] is True
+    assert results['configuration']['load_mass_kg'] == record.known_load_mass_kg
+    assert results['configuration']['source'].startswith(
+        'load_mass_kg from measurement description (extra)')
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize('broken', ['wrong_pan_load', 'position_gain', 'noise_position'])
+def test_a_failed_fit_exits_1_with_its_report(record, tmp_path, broken):
+    args = []
+    if broken == 'wrong_pan_load':
+        # told twice the real load: the identified mass matrix contradicts it
+        bag = bag_of(record, tmp_path)
+        args = ['--load-mass-kg', repr(2.0 * record.known_load_mass_kg)]
+    elif broken == 'position_gain':
+        bag = bag_of(with_position_gain(record, 1.1), tmp_path)
+    else:
+        bag = bag_of(with_noise_position(record, seed=SEED), tmp_path)
+    done = identify(bag, tmp_path / 'out', *args)
+    assert done.returncode == 1, (broken, done.stdout[-3000:] + done.stderr[-3000:])
+    assert 'the identification FAILED' in done.stderr
+    results = yaml.safe_load((tmp_path / 'out' / 'results.yaml').read_text())
+    assert results['status']['success'] is False and results['status']['failures']
+    summary = (tmp_path / 'out' / 'summary.md').read_text()
+    assert '**Identification FAILED**' in summary
+    if broken == 'wrong_pan_load':
+        assert results['configuration']['source'] == 'load_mass_kg from options; ' \
+            'load_changer_coupled from measurement description (extra)'
+        assert any('mass matrix' in f for f in results['status']['failures'])
