@@ -45,6 +45,12 @@ DYNAMIC_WAIT_S = 0.5
 #: simulation may run ahead of the printed ones (the look-ahead needs one).
 BLOCK_PER_READING = 1000
 READINGS_AHEAD = 2
+#: Until the first reading is printed the simulation may run this many readings ahead: the
+#: weighing node ignores blocks that reach it before the plant's (latched) description, and
+#: with only READINGS_AHEAD readings allowed the first reading's look-ahead would then never
+#: be simulated (seen under load: no reading in 180 s). Zero, tare and adjust act on steady
+#: readings (a full 1-s window), so the first 0.5 s run ahead harms none of them.
+READINGS_AHEAD_AT_START = 5
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -412,8 +418,9 @@ class _Session:
         # the simulator never runs more than two readings ahead of what is printed and acted
         # on, so that zero, tare and adjust act on the reading they were asked for
         ahead = self.handled_index + 1 + READINGS_AHEAD * BLOCK_PER_READING
-        allowed = min(pacer.allowed_index(time.monotonic(), self.acked), end,
-                      max(ahead, READINGS_AHEAD * BLOCK_PER_READING))
+        if self.count == 0:
+            ahead = max(ahead, READINGS_AHEAD_AT_START * BLOCK_PER_READING)
+        allowed = min(pacer.allowed_index(time.monotonic(), self.acked), end, ahead)
         while self.sent < allowed:
             self.pub.publish(block_to_msg(self.sent, SAMPLE_RATE_HZ, 1, np.zeros((2, BLOCK))))
             self.sent += BLOCK
