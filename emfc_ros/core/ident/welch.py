@@ -23,8 +23,10 @@ from scipy import signal as sps
 # L2 per core, shared with other work) 512 KiB and 1 MiB were within the run-to-run noise of
 # each other; 128 KiB paid for the per-call overhead and 2 to 8 MiB lost the cache by 10 to
 # 40 %. The FFT runs on one thread: ``workers=2`` was no faster on that machine under load
-# (both measured with /tmp scripts, figures in docs/benchmarks.md).
+# (``bench/bench_ident_core.py --sweep`` measures both; figures in docs/benchmarks.md).
 CHUNK_BYTES = 1 << 19
+# Threads of each FFT call (scipy.fft ``workers``).
+FFT_WORKERS = 1
 
 _VECDOT = getattr(np, 'vecdot', None)   # numpy >= 2.0: sum(conj(a) * b) without a copy
 
@@ -96,7 +98,7 @@ def welch_sums(records: Sequence[np.ndarray], nperseg: int, step: int, n_segment
                 np.multiply(sps.detrend(seg, axis=-1, type=detrend), window, out=part[c])
             else:
                 np.multiply(seg, window, out=part[c])
-        spec = spfft.rfft(part, axis=-1)     # (C, k, F)
+        spec = spfft.rfft(part, axis=-1, workers=FFT_WORKERS)   # (C, k, F)
         as_real = spec.view(float)                # (C, k, 2F): re, im interleaved
         for i in range(n_ch):
             auto[i] += np.einsum('kf,kf->f', as_real[i], as_real[i])
