@@ -21,6 +21,7 @@ Speed of the identification core, each figure a ratio to a baseline measured in 
 
     .venv/bin/python bench/bench_ident_core.py --json bench/results/ident_core.json
     .venv/bin/python bench/bench_ident_core.py --only frf --sweep     # FRF part only
+    .venv/bin/python bench/bench_ident_core.py --only threads --load 2   # on a loaded machine
 """
 
 from __future__ import annotations
@@ -64,13 +65,15 @@ def best_time(run: Callable[[], object], repeats: int) -> float:
 
 
 def interleaved(runs: Dict[str, Callable[[], object]], repeats: int) -> Dict[str, float]:
-    """Best wall time of each run [s], the runs taking turns (same machine state)."""
+    """Best wall time of each run [s], the runs taking turns (order reversed every round)."""
     best = {name: float('inf') for name in runs}
+    order = list(runs.items())
     for _ in range(repeats):
-        for name, run in runs.items():
+        for name, run in order:
             start = time.perf_counter()
             run()
             best[name] = min(best[name], time.perf_counter() - start)
+        order.reverse()
     return best
 
 
@@ -180,8 +183,8 @@ def identify_rows(repeats: int) -> List[Dict]:
     options = record.options()
     identify(record.recording, record.section_table, options)      # compile, warm caches
     steps: Dict[bool, Dict[str, List[float]]] = {True: {}, False: {}}
-    for _ in range(repeats):
-        for on in (True, False):
+    for rep in range(repeats):
+        for on in ((True, False) if rep % 2 == 0 else (False, True)):
             previous = blas_threads.set_limiting(on)
             try:
                 start = time.perf_counter()
@@ -246,6 +249,22 @@ def greybox_rows() -> List[Dict]:
     return rows
 
 
+SPINNER = 'import time\nend = time.monotonic() + 900.0\nwhile time.monotonic() < end:\n    pass\n'
+
+
+def start_load(processes: int) -> list:
+    """Busy processes that load the cores like other jobs do (each ends after 900 s)."""
+    import subprocess
+    return [subprocess.Popen([sys.executable, '-c', SPINNER]) for _ in range(processes)]
+
+
+def stop_load(procs: list) -> None:
+    for proc in procs:
+        proc.terminate()
+    for proc in procs:
+        proc.wait(10.0)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[1])
     parser.add_argument('--samples', type=int, nargs='+', default=[10 ** 6, 10 ** 7])
@@ -255,6 +274,9 @@ def main() -> None:
                         help='identify runs with and without the BLAS limit (0: skip)')
     parser.add_argument('--only', choices=('frf', 'threads', 'greybox'),
                         help='run one part only')
+    parser.add_argument('--load', type=int, default=0,
+                        help='busy processes running during the BLAS-thread part (a loaded '
+                             'machine, as in issue 14)')
     parser.add_argument('--sweep', action='store_true',
                         help='FRF: also chunk sizes and FFT workers of the core')
     parser.add_argument('--json', type=Path, default=ROOT / 'bench' / 'results'
@@ -291,9 +313,16 @@ def main() -> None:
                   f'{row["max_relative_difference_coherence"]:.1e} (target <= 1e-12: '
                   f'{"met" if worst <= 1e-12 else "NOT met"})')
     if args.only in (None, 'threads'):
-        result['blas_threads'] = tf_rows(args.repeats)
-        if args.identify_repeats > 0:
-            result['blas_threads'] += identify_rows(args.identify_repeats)
+        load = start_load(args.load)
+        try:
+            result['blas_threads'] = tf_rows(args.repeats)
+            if args.identify_repeats > 0:
+                result['blas_threads'] += identify_rows(args.identify_repeats)
+        finally:
+            stop_load(load)
+        result['blas_threads_background_load'] = args.load
+        if args.load:
+            print(f'BLAS threads measured with {args.load} busy processes running')
         for row in result['blas_threads']:
             ratio = row['ratio_default_to_limited']
             if ratio is None:
