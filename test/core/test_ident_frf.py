@@ -72,6 +72,8 @@ def assert_close_to_scipy(spec, f, mat):
     (9999, 512, 500, 'hamming', 'linear', None),         # step 12 does not divide 512
     (9999, 512, 0, 'blackman', False, 20000),            # no overlap, no detrend, chunk 9
     (4097, 4097, 0, 'hann', 'constant', None),           # one segment, the whole record
+    (10001, 1000, 750, 'hann', 'constant', 70000),       # means from 4 blocks per segment
+    (10001, 1000, 0, 'hamming', 'constant', None),       # means from 1 block per segment
     (5000, 777, 600, ('tukey', 0.3), 'linear', 30000),   # overlap > half
     (6000, 256, None, 'custom', False, None),            # a window array
 ])
@@ -108,6 +110,19 @@ def test_estimate_frf_equal_scipy_recipe():
     frd = estimate_frf(u, y, FS_HZ, nperseg=4096)
     np.testing.assert_allclose(frd.response, (pxy / pxx)[1:], rtol=1e-12)
     np.testing.assert_allclose(frd.coherence, (np.abs(pxy) ** 2 / (pxx * pyy))[1:], rtol=1e-12)
+
+
+def test_non_finite_samples_anywhere_are_refused_naming_the_record():
+    # 1000 samples, segments of 300 every 150: the last segment ends at sample 900.
+    kw = dict(nperseg=300, noverlap=150)
+    for name, index, value in (('input', 950, np.nan), ('output', 10, np.inf),
+                               ('output', 999, -np.inf), ('input', 450, np.nan)):
+        u, y = noise(31, 1000), noise(32, 1000)
+        (u if name == 'input' else y)[index] = value
+        with pytest.raises(IdentificationError, match=f'{name} holds non-finite'):
+            estimate_frf(u, y, FS_HZ, **kw)
+    with pytest.raises(IdentificationError, match='too large'):
+        estimate_frf(1e200 * noise(33, 1000), noise(34, 1000), FS_HZ, **kw)
 
 
 def test_cross_spectra_refuses_bad_channels():

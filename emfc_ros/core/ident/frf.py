@@ -474,9 +474,19 @@ def estimate_frf(input: np.ndarray, output: np.ndarray, sample_rate_Hz: float, *
     """
     if estimator not in ESTIMATORS:
         raise IdentificationError(f'estimator must be one of {ESTIMATORS}, got {estimator!r}')
-    u, y = as_records(('input', 'output'), (input, output))
-    spec = cross_spectra((u, y), sample_rate_Hz, nperseg=nperseg, noverlap=noverlap,
-                         window=window, detrend=detrend)
+    names = ('input', 'output')
+    # The finiteness check rides on the spectra: a NaN or infinite sample in any segment makes
+    # the sums non-finite; only the samples after the last segment are checked directly.
+    u, y = same_clock_records(names, (input, output), IdentificationError, check_finite=False)
+    with np.errstate(invalid='ignore', over='ignore'):     # checked just below
+        spec = cross_spectra((u, y), sample_rate_Hz, nperseg=nperseg, noverlap=noverlap,
+                             window=window, detrend=detrend)
+    used = (spec.n_segments - 1) * (spec.nperseg - spec.noverlap) + spec.nperseg
+    if not (np.isfinite(spec.matrix).all() and np.isfinite(u[used:]).all()
+            and np.isfinite(y[used:]).all()):
+        as_records(names, (u, y))     # raises, naming the record
+        raise IdentificationError('the spectra are not finite: the records hold values too '
+                                  'large to square (above about 1e150)')
     m = spec.matrix[1:]
     sxx, syy, sxy = m[:, 0, 0].real, m[:, 1, 1].real, m[:, 0, 1]
     with np.errstate(divide='ignore', invalid='ignore'):

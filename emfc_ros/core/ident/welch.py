@@ -8,12 +8,15 @@ cache) is detrended and windowed in place in a preallocated buffer, Fourier tran
 its products are added to the running sums before the next chunk is read. Profiled at 10^6
 samples (issue 14), the former whole-record version spent 40 % of its time in the windowed copy
 of every segment and 15 % in a cumulative sum for the segment means, against 28 % in the FFT;
-chunked, the FFT is most of the time (``docs/benchmarks.md``).
+chunked, the FFT is about two thirds of the time and the products of the spectra most of the
+rest (``docs/benchmarks.md``). The segment means come from block sums taken once over the
+record (:func:`segment_means`) when the overlap lets whole blocks tile the segments.
 """
 
 from __future__ import annotations
 
-from typing import Sequence, Union
+import math
+from typing import Optional, Sequence, Union
 
 import numpy as np
 from scipy import fft as spfft
@@ -21,10 +24,10 @@ from scipy import signal as sps
 
 # Samples of one chunk, all channels together [bytes]. On the project's 2-core machine (4 MiB
 # L2 per core, shared with other work) 512 KiB and 1 MiB were within the run-to-run noise of
-# each other; 128 KiB paid for the per-call overhead and 2 to 8 MiB lost the cache by 10 to
-# 40 %. The FFT runs on one thread: ``workers=2`` was no faster on that machine under load
-# (``bench/bench_ident_core.py --sweep`` measures both; figures in docs/benchmarks.md).
-CHUNK_BYTES = 1 << 19
+# each other (1 MiB halves the per-chunk Python calls); 128 KiB paid for those calls and 4 MiB
+# lost the cache. The FFT runs on one thread: ``workers=2`` was no faster on that machine
+# under load (``bench/bench_ident_core.py --sweep`` measures both; docs/benchmarks.md).
+CHUNK_BYTES = 1 << 20
 # Threads of each FFT call (scipy.fft ``workers``).
 FFT_WORKERS = 1
 
@@ -50,6 +53,43 @@ def segment_views(records: Sequence[np.ndarray], nperseg: int, step: int,
     """
     return [np.lib.stride_tricks.sliding_window_view(r, nperseg)[::step][:n_segments]
             for r in records]
+
+
+def segment_means(record: np.ndarray, nperseg: int, step: int, n_segments: int,
+                  max_blocks: int = 8) -> Optional[np.ndarray]:
+    """
+    Means of all segments from sums of blocks that tile them, in one pass over the record.
+
+    With ``g = gcd(step, nperseg)`` every segment is ``nperseg / g`` whole blocks of ``g``
+    samples (two half-segments at 50 % overlap), so the block sums, taken once over the
+    record, give every segment's sum with ``nperseg / g - 1`` additions.
+
+    Parameters
+    ----------
+    record : ndarray
+        One-dimensional float64 record.
+    nperseg, step, n_segments : int
+        Segment length, distance between segment starts and number of segments [samples].
+    max_blocks : int
+        Largest number of blocks per segment worth it (beyond, None is returned and the
+        caller takes the means segment by segment).
+
+    Returns
+    -------
+    ndarray or None
+        Shape (n_segments,), or None when a segment would take more than ``max_blocks``
+        blocks.
+    """
+    g = math.gcd(step, nperseg)
+    per_segment, stride = nperseg // g, step // g
+    if per_segment > max_blocks:
+        return None
+    used = (n_segments - 1) * step + nperseg
+    blocks = record[:used].reshape(-1, g).sum(axis=-1)
+    sums = blocks[0:(n_segments - 1) * stride + 1:stride].copy()
+    for j in range(1, per_segment):
+        sums += blocks[j:j + (n_segments - 1) * stride + 1:stride]
+    return sums / nperseg
 
 
 def welch_sums(records: Sequence[np.ndarray], nperseg: int, step: int, n_segments: int,
@@ -86,13 +126,17 @@ def welch_sums(records: Sequence[np.ndarray], nperseg: int, step: int, n_segment
     auto = np.zeros((n_ch, 2 * n_freq))          # sum of re^2 and im^2, interleaved
     cross = {(i, j): np.zeros(n_freq, dtype=complex)
              for i in range(n_ch) for j in range(i + 1, n_ch)}
+    means = [segment_means(r, nperseg, step, n_segments) for r in records] \
+        if detrend == 'constant' else [None] * n_ch
     for k0 in range(0, n_segments, chunk):
         k1 = min(n_segments, k0 + chunk)
         part = buf[:, :k1 - k0]
         for c, view in enumerate(views):
             seg = view[k0:k1]
             if detrend == 'constant':
-                np.subtract(seg, seg.mean(axis=-1, keepdims=True), out=part[c])
+                m = means[c]
+                np.subtract(seg, seg.mean(axis=-1, keepdims=True) if m is None
+                            else m[k0:k1, None], out=part[c])
                 part[c] *= window
             elif detrend:
                 np.multiply(sps.detrend(seg, axis=-1, type=detrend), window, out=part[c])
