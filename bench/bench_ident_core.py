@@ -302,8 +302,7 @@ def main() -> None:
     if args.only in (None, 'frf'):
         result['frf'] = []
         for n in args.samples:
-            result['frf'] += frf_rows(n, args.repeats if n <= 10 ** 6 else
-                                      max(2, args.repeats // 2), args.sweep)
+            result['frf'] += frf_rows(n, args.repeats, args.sweep)
         for row in result['frf']:
             if row['case'] == 'FRF sweep':
                 for name, t in row['times_s'].items():
