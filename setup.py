@@ -73,6 +73,7 @@ setup(
         'PyYAML>=6',
         'rosbags>=0.10',
         'mcap>=1.6',
+        'threadpoolctl>=3.1',
     ] + ROS_FROM_PYPI,
     extras_require={
         'fast': ['numba>=0.59'],

@@ -11,9 +11,13 @@ recording, the recorder's CPU time, dropped messages and the bag size.
 
 Baselines, in the same run, on the same serialized messages (no DDS): rosbags'
 ``Writer(version=9, storage_plugin=MCAP)`` writing them directly, and this package's
-``BagWriter`` (the recorder's writer without DDS and thread).
+``BagWriter`` (the recorder's writer without DDS and thread), interleaved, best of
+``--repeats``; the writer-only ratio (ours / rosbags, messages per second) is printed. Our
+writer also fsyncs when it closes a file (crash safety), rosbags' does not; both times
+include closing.
 
     unshare -n -- bash -c 'ip link set lo up && .venv/bin/python bench/bench_recorder.py'
+    .venv/bin/python bench/bench_recorder.py --writers-only --channels 8   # no DDS
 """
 
 from __future__ import annotations
@@ -147,6 +151,9 @@ def record_over_dds(rate: float, channels: int, seconds: float, work: Path) -> d
         'mode': 'recorder over DDS', 'rate_S_per_s': rate, 'channels': channels,
         'seconds': sent['seconds'], 'messages': messages,
         'received_samples': [meas.n_samples, exc.n_samples],
+        'gaps': [list(map(list, meas.gaps))[:10], list(map(list, exc.gaps))[:10]],
+        'first_sample_index': [meas.first_sample_index, exc.first_sample_index],
+        'last_sample_exact': exact,
         'lossless': lossless and exact,
         'dropped': int(match.group(3)) if match else None,
         'files': int(match.group(2)) if match else None,
@@ -177,8 +184,16 @@ def serialized_messages(rate: float, channels: int, seconds: float):
     return out
 
 
-def write_directly(kind: str, messages, work: Path, rate: float, channels: int) -> dict:
-    """Baseline: write the serialized messages with rosbags' Writer or our BagWriter."""
+def write_directly(kind: str, messages, work: Path, rate: float, channels: int,
+                   durable: bool = True) -> dict:
+    """
+    Baseline: write the serialized messages with rosbags' Writer or our BagWriter.
+
+    ``durable``: the time includes putting the data on disk: our writer fsyncs when it closes
+    a file (as the recorder does), and rosbags' files are fsynced after its close (it never
+    fsyncs itself). Without it, our writer runs with ``fsync=False`` and neither waits for
+    the disk (the data may still be in the page cache when the clock stops).
+    """
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import get_typestore, Stores
 
@@ -196,8 +211,15 @@ def write_directly(kind: str, messages, work: Path, rate: float, channels: int) 
                      for t in (MEASUREMENT, EXCITATION)]
             for k, t, raw in messages:
                 writer.write(conns[k], t, raw)
+        if durable:
+            for file in sorted(path.iterdir()):
+                fd = os.open(file, os.O_RDONLY)
+                try:
+                    os.fsync(fd)
+                finally:
+                    os.close(fd)
     else:
-        writer = BagWriter(path)
+        writer = BagWriter(path, fsync=durable)
         writer.open()
         conns = [writer.add_connection(t, msgtype) for t in (MEASUREMENT, EXCITATION)]
         for k, t, raw in messages:
@@ -205,11 +227,32 @@ def write_directly(kind: str, messages, work: Path, rate: float, channels: int) 
         writer.close()
     elapsed = time.perf_counter() - start
     cpu = time.process_time() - cpu0
-    return {'mode': f'{kind} direct write', 'rate_S_per_s': rate, 'channels': channels,
+    return {'mode': f'{kind} direct{", fsync" if durable else ""}', 'rate_S_per_s': rate,
+            'channels': channels, 'durable': durable,
             'seconds': elapsed, 'messages': len(messages), 'lossless': True,
             'MB_per_s': data_bytes / elapsed / 1e6, 'messages_per_s': len(messages) / elapsed,
             'writer_cpu_s': cpu,
             'bag_MB': sum(p.stat().st_size for p in path.glob('*.mcap')) / 1e6}
+
+
+def writer_ratio(messages, work: Path, rate: float, channels: int, repeats: int,
+                 durable: bool) -> dict:
+    """Both writers on the same messages, interleaved, best of ``repeats``; their ratio."""
+    best = {}
+    for rep in range(repeats):
+        for kind in ('rosbags', 'BagWriter'):
+            run = write_directly(kind, messages, work / f'{rep}', rate, channels, durable)
+            shutil.rmtree(work / f'{rep}', ignore_errors=True)
+            if kind not in best or run['messages_per_s'] > best[kind]['messages_per_s']:
+                best[kind] = run
+    ours, theirs = best['BagWriter'], best['rosbags']
+    return {'channels': channels, 'rate_S_per_s': rate, 'repeats': repeats,
+            'durable': durable,
+            'rosbags_messages_per_s': theirs['messages_per_s'],
+            'ours_messages_per_s': ours['messages_per_s'],
+            'ratio': ours['messages_per_s'] / theirs['messages_per_s'],
+            'cpu_ratio': theirs['writer_cpu_s'] / ours['writer_cpu_s'],
+            'runs': [theirs, ours]}
 
 
 def main(argv=None) -> int:
@@ -219,35 +262,52 @@ def main(argv=None) -> int:
     parser.add_argument('--rate', type=float, default=300000.0, help='sample rate [S/s]')
     parser.add_argument('--channels', type=int, nargs='+', default=[4, 8],
                         help='measurement channels per run')
+    parser.add_argument('--direct-seconds', type=float, default=5.0,
+                        help='stream time of the messages the writers write directly [s]')
+    parser.add_argument('--repeats', type=int, default=3,
+                        help='direct writes per writer (interleaved, best kept)')
+    parser.add_argument('--writers-only', action='store_true',
+                        help='only the direct writes (no DDS, no recorder process)')
     parser.add_argument('--json', default=str(REPO / 'bench' / 'results' / 'recorder.json'))
     args = parser.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix='bench_recorder_'))
     runs = []
+    ratios = []
     try:
         for channels in args.channels:
-            runs.append(record_over_dds(args.rate, channels, args.seconds, work))
-            messages = serialized_messages(args.rate, channels, args.seconds)
-            runs.append(write_directly('rosbags', messages, work, args.rate, channels))
-            runs.append(write_directly('emfc_ros BagWriter', messages, work, args.rate,
-                                       channels))
+            if not args.writers_only:
+                runs.append(record_over_dds(args.rate, channels, args.seconds, work))
+            messages = serialized_messages(args.rate, channels, args.direct_seconds)
+            for durable in (False, True):
+                ratio = writer_ratio(messages, work, args.rate, channels, args.repeats,
+                                     durable)
+                runs.extend(ratio.pop('runs'))
+                ratios.append(ratio)
             del messages
     finally:
         if os.environ.get('EMFC_BENCH_KEEP'):
             print(f'kept {work}')
         else:
             shutil.rmtree(work, ignore_errors=True)
-    print(f'{"mode":>28} {"kS/s":>6} {"ch":>3} {"s":>6} {"msgs":>6} {"msg/s":>8} '
+    print(f'{"mode":>24} {"kS/s":>6} {"ch":>3} {"s":>6} {"msgs":>6} {"msg/s":>8} '
           f'{"MB/s":>7} {"lossless":>8} {"dropped":>7} {"CPU s":>6} {"bag MB":>7}')
     for r in runs:
         cpu = r.get('recorder_cpu_s', r.get('writer_cpu_s', 0.0))
         dropped = r.get('dropped', '-')
-        print(f'{r["mode"]:>28} {r["rate_S_per_s"] / 1e3:6.0f} {r["channels"]:3d} '
+        print(f'{r["mode"]:>24} {r["rate_S_per_s"] / 1e3:6.0f} {r["channels"]:3d} '
               f'{r["seconds"]:6.2f} {r["messages"]:6d} {r["messages_per_s"]:8.0f} '
               f'{r["MB_per_s"]:7.1f} {str(r["lossless"]):>8} {str(dropped):>7} {cpu:6.2f} '
               f'{r["bag_MB"]:7.1f}')
+    for r in ratios:
+        what = 'on disk (fsync)' if r['durable'] else 'page cache'
+        print(f'writer only, {r["channels"]} + 2 channels, {what}, best of {r["repeats"]}: '
+              f'BagWriter {r["ours_messages_per_s"]:.0f} msg/s, rosbags Writer '
+              f'{r["rosbags_messages_per_s"]:.0f} msg/s, ratio {r["ratio"]:.2f} '
+              f'(target >= 0.5: {"met" if r["ratio"] >= 0.5 else "NOT met"}); CPU time '
+              f'rosbags / ours {r["cpu_ratio"]:.2f}')
     out = Path(args.json)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({'block_samples': BLOCK, 'runs': runs,
+    out.write_text(json.dumps({'block_samples': BLOCK, 'runs': runs, 'writer_ratios': ratios,
                                'command': 'bench/bench_recorder.py ' + ' '.join(
                                    argv if argv is not None else sys.argv[1:])}, indent=2))
     print(f'wrote {out}')

@@ -19,7 +19,8 @@ def _joined(items: Sequence[object]) -> str:
 
 def same_clock_records(names: Sequence[str], arrays: Sequence[object],
                        error: Type[ValueError] = ValueError,
-                       allow_empty: bool = False) -> Tuple[np.ndarray, ...]:
+                       allow_empty: bool = False,
+                       check_finite: bool = True) -> Tuple[np.ndarray, ...]:
     """
     Return records as contiguous float64 arrays after checking them.
 
@@ -33,6 +34,9 @@ def same_clock_records(names: Sequence[str], arrays: Sequence[object],
         Exception class raised (a subclass of ValueError).
     allow_empty : bool
         Accept records of no samples.
+    check_finite : bool
+        Check every sample for NaN and infinity (a caller whose result shows any non-finite
+        sample may skip this pass and call again with it when the result is not finite).
 
     Returns
     -------
@@ -50,7 +54,7 @@ def same_clock_records(names: Sequence[str], arrays: Sequence[object],
         if arr.ndim != 1 or (arr.size == 0 and not allow_empty):
             raise error(f'{name} must be a {"" if allow_empty else "non-empty "}1-D array, '
                         f'got shape {arr.shape}')
-        if not np.isfinite(arr).all():
+        if check_finite and not np.isfinite(arr).all():
             raise error(f'{name} holds non-finite samples (NaN or infinite)')
     sizes = [arr.size for arr in records]
     if len(set(sizes)) > 1:

@@ -36,6 +36,104 @@ def test_cross_spectra_equal_scipy_csd():
     np.testing.assert_array_equal(spec.matrix[:, 1, 1].imag, 0.0)
 
 
+def scipy_spectra(x, **kw):
+    """The scipy recipe: csd for every pair, welch for every channel."""
+    n_ch = len(x)
+    mat = None
+    for i in range(n_ch):
+        for j in range(n_ch):
+            if i == j:
+                f, s = signal.welch(x[i], FS_HZ, **kw)
+            else:
+                f, s = signal.csd(x[i], x[j], FS_HZ, **kw)
+            if mat is None:
+                mat = np.empty((f.size, n_ch, n_ch), dtype=complex)
+            mat[:, i, j] = s
+    return f, mat
+
+
+def assert_close_to_scipy(spec, f, mat):
+    # Relative to the largest value of each spectrum (a bin where the two agree to 1e-15 in
+    # absolute terms may hold a value 1e-10 of the largest one), and element-wise where the
+    # value is not more than 1e6 times below the largest.
+    np.testing.assert_allclose(spec.frequency_Hz, f)
+    for i in range(mat.shape[1]):
+        for j in range(mat.shape[2]):
+            ref, ours = mat[:, i, j], spec.matrix[:, i, j]
+            scale = np.max(np.abs(ref))
+            assert np.max(np.abs(ours - ref)) <= 1e-12 * scale, (i, j)
+            big = np.abs(ref) > 1e-6 * scale
+            np.testing.assert_allclose(ours[big], ref[big], rtol=1e-9)
+
+
+@pytest.mark.parametrize('n, nperseg, noverlap, window, detrend, chunk_bytes', [
+    (10007, 1001, 333, 'hann', 'constant', None),        # odd lengths, step 668 odd
+    (10007, 1001, 333, 'hann', 'constant', 1),           # one segment per chunk
+    (9999, 512, 500, 'hamming', 'linear', None),         # step 12 does not divide 512
+    (9999, 512, 0, 'blackman', False, 20000),            # no overlap, no detrend, chunk 9
+    (4097, 4097, 0, 'hann', 'constant', None),           # one segment, the whole record
+    (10001, 1000, 750, 'hann', 'constant', 70000),       # means from 4 blocks per segment
+    (10001, 1000, 0, 'hamming', 'constant', None),       # means from 1 block per segment
+    (5000, 777, 600, ('tukey', 0.3), 'linear', 30000),   # overlap > half
+    (6000, 256, None, 'custom', False, None),            # a window array
+])
+def test_cross_spectra_equal_scipy_on_awkward_settings(monkeypatch, n, nperseg, noverlap,
+                                                       window, detrend, chunk_bytes):
+    from emfc_ros.core.ident import welch
+    if chunk_bytes is not None:
+        monkeypatch.setattr(welch, 'CHUNK_BYTES', chunk_bytes)
+    rng = np.random.default_rng(n + nperseg)
+    # Three channels with offsets and a trend, one a filtered copy of another.
+    t = np.arange(n) / FS_HZ
+    x0 = rng.standard_normal(n) + 5.0 + 3.0 * t
+    x1 = signal.lfilter([0.2, 0.3], [1.0, -0.5], x0) + 0.1 * rng.standard_normal(n)
+    x2 = rng.standard_normal(n) - 2.0
+    if isinstance(window, str) and window == 'custom':
+        window = rng.uniform(0.5, 1.0, nperseg)
+    kw = dict(nperseg=nperseg, noverlap=noverlap, window=window, detrend=detrend)
+    spec = cross_spectra((x0, x1, x2), FS_HZ, **kw)
+    f, mat = scipy_spectra((x0, x1, x2), **kw)
+    assert_close_to_scipy(spec, f, mat)
+    assert spec.n_segments == (n - spec.noverlap) // (nperseg - spec.noverlap)
+    np.testing.assert_array_equal(np.diagonal(spec.matrix, axis1=1, axis2=2).imag, 0.0)
+    # The stacked (C, N) array gives the same numbers as the sequence of records.
+    np.testing.assert_array_equal(cross_spectra(np.vstack((x0, x1, x2)), FS_HZ, **kw).matrix,
+                                  spec.matrix)
+
+
+def test_estimate_frf_equal_scipy_recipe():
+    u = noise(21, 200003)
+    y = signal.lfilter(*signal.butter(4, 0.1), u) + 0.01 * noise(22, u.size)
+    _, pxy = signal.csd(u, y, FS_HZ, nperseg=4096)
+    _, pxx = signal.welch(u, FS_HZ, nperseg=4096)
+    _, pyy = signal.welch(y, FS_HZ, nperseg=4096)
+    frd = estimate_frf(u, y, FS_HZ, nperseg=4096)
+    np.testing.assert_allclose(frd.response, (pxy / pxx)[1:], rtol=1e-12)
+    np.testing.assert_allclose(frd.coherence, (np.abs(pxy) ** 2 / (pxx * pyy))[1:], rtol=1e-12)
+
+
+def test_non_finite_samples_anywhere_are_refused_naming_the_record():
+    # 1000 samples, segments of 300 every 150: the last segment ends at sample 900.
+    kw = dict(nperseg=300, noverlap=150)
+    for name, index, value in (('input', 950, np.nan), ('output', 10, np.inf),
+                               ('output', 999, -np.inf), ('input', 450, np.nan)):
+        u, y = noise(31, 1000), noise(32, 1000)
+        (u if name == 'input' else y)[index] = value
+        with pytest.raises(IdentificationError, match=f'{name} holds non-finite'):
+            estimate_frf(u, y, FS_HZ, **kw)
+    with pytest.raises(IdentificationError, match='too large'):
+        estimate_frf(1e200 * noise(33, 1000), noise(34, 1000), FS_HZ, **kw)
+
+
+def test_cross_spectra_refuses_bad_channels():
+    with pytest.raises(IdentificationError, match='shape'):
+        cross_spectra(np.ones(100), FS_HZ)
+    with pytest.raises(IdentificationError, match='equally long'):
+        cross_spectra((np.ones(100), np.ones(99)), FS_HZ)
+    with pytest.raises(IdentificationError, match='detrend'):
+        cross_spectra((np.ones(100), np.ones(100)), FS_HZ, detrend='quadratic')
+
+
 def test_effective_averages_of_hann_at_half_overlap():
     # Welch (1967): Hann at 50 % overlap has rho = 1/6, so n_eff = K / (1 + 2 (1 - 1/K) / 36).
     win = signal.get_window('hann', 1024)

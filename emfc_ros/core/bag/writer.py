@@ -12,9 +12,12 @@ Crash safety: :meth:`BagWriter.flush` closes the chunk in progress, writes it to
 fsyncs, and rewrites a provisional ``metadata.yaml``; everything written before the last flush
 survives a killed process and is recovered by :func:`emfc_ros.core.bag.repair.repair_bag`.
 
-The MCAP files are written with the ``mcap`` package's writer (its ``flush`` closes a chunk on
-demand, which rosbags' writer does not offer); message definitions, hashes and QoS text come
-from the pinned rosbags typestore, so readers see the same schemas as rosbags writes.
+The MCAP files are written by :class:`~emfc_ros.core.bag.mcap_file.McapFileWriter`, which
+writes byte for byte what the ``mcap`` package's writer writes (its records, its ``flush``
+closing a chunk on demand, which rosbags' writer does not offer) with one copy and one CRC
+pass per message instead of four copies and two passes; message definitions, hashes and QoS
+text come from the pinned rosbags typestore, so readers see the same schemas as rosbags
+writes.
 """
 
 from __future__ import annotations
@@ -24,10 +27,9 @@ import os
 from pathlib import Path
 from typing import BinaryIO, Dict, List, Optional, Sequence
 
-from mcap.writer import CompressionType, Writer as McapWriter
-
 from emfc_ros import __version__ as _package_version
 from emfc_ros.core.bag.errors import BagExistsError, BagWriteError
+from emfc_ros.core.bag.mcap_file import McapFileWriter
 from emfc_ros.core.bag.metadata import (
     build_metadata, dump_metadata, FileStats, TopicStats, write_metadata)
 from emfc_ros.core.bag.msgdefs import MessageTypes
@@ -98,7 +100,7 @@ class BagWriter:
         self.files: List[FileStats] = []
         self._connections: List[_Connection] = []
         self._stream: Optional[BinaryIO] = None
-        self._mcap: Optional[McapWriter] = None
+        self._mcap: Optional[McapFileWriter] = None
         self._channel_ids: Dict[int, int] = {}
         self._sequence: Dict[int, int] = {}
         self._file_bytes = 0
@@ -372,8 +374,7 @@ class BagWriter:
             self._stream = open(self.path / name, 'xb')
         except OSError as exc:
             raise BagWriteError(f'cannot create {self.path / name}: {exc}') from exc
-        self._mcap = McapWriter(self._stream, chunk_size=self.chunk_size_B,
-                                compression=CompressionType.NONE, enable_data_crcs=True)
+        self._mcap = McapFileWriter(self._stream, chunk_size=self.chunk_size_B)
         self.files.append(FileStats(name))
         self._channel_ids = {}
         self._schema_ids: Dict[str, int] = {}

@@ -33,6 +33,7 @@ from typing import Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 import numpy as np
 from scipy import optimize
 
+from emfc_ros.core.blas_threads import with_single_blas_thread
 from emfc_ros.core.ident.errors import IdentificationError
 from emfc_ros.core.ident.local_polynomial import local_polynomial_frf
 from emfc_ros.core.model.linear import linearise, LinearModel
@@ -329,6 +330,7 @@ def weighted_residuals(model: MechanicsFrfModel, frfs: Sequence[MeasuredFrf],
     return np.concatenate(parts)
 
 
+@with_single_blas_thread
 def fit_frfs(model: MechanicsFrfModel, frfs: Sequence[MeasuredFrf],
              start: Mapping[str, float], names: Sequence[str],
              lower: Optional[Mapping[str, float]] = None,
@@ -517,6 +519,7 @@ def _feature_vector(feats: ModalFeatures) -> Tuple[np.ndarray, np.ndarray]:
     return np.array(target), np.array(weight)
 
 
+@with_single_blas_thread
 def feature_start(model: MechanicsFrfModel, frfs: Sequence[MeasuredFrf],
                   feats: ModalFeatures, names: Sequence[str], start: Mapping[str, float],
                   multipliers: Sequence[float] = (1.0, 0.5, 2.0),

@@ -33,6 +33,7 @@ from scipy import signal as sps
 from scipy import special
 
 from emfc_ros.core.ident.errors import IdentificationError
+from emfc_ros.core.ident.welch import welch_sums
 from emfc_ros.core.records import same_clock_records
 
 ESTIMATORS = ('H1', 'H2', 'Hv')
@@ -326,7 +327,19 @@ def check_rate(sample_rate_Hz: float) -> float:
     return fs
 
 
-def cross_spectra(channels: np.ndarray, sample_rate_Hz: float, *,
+def _channel_records(channels: Union[np.ndarray, Sequence[np.ndarray]]) -> list:
+    """Rows of a (C, N) array, or a sequence of equally long 1-D records, as float64."""
+    if isinstance(channels, np.ndarray) and channels.ndim != 2:
+        raise IdentificationError(f'channels must have shape (C, N), got {channels.shape}')
+    records = [np.asarray(c, dtype=float) for c in channels]
+    shapes = {r.shape for r in records}
+    if not records or len(shapes) != 1 or records[0].ndim != 1 or records[0].size == 0:
+        raise IdentificationError(f'channels must have shape (C, N) (C equally long '
+                                  f'non-empty records), got shapes {sorted(shapes)}')
+    return records
+
+
+def cross_spectra(channels: Union[np.ndarray, Sequence[np.ndarray]], sample_rate_Hz: float, *,
                   nperseg: Optional[int] = None, noverlap: Optional[int] = None,
                   window: WindowSpec = 'hann', detrend: Union[str, bool] = 'constant',
                   ) -> Spectra:
@@ -336,12 +349,14 @@ def cross_spectra(channels: np.ndarray, sample_rate_Hz: float, *,
     Segmenting, windowing, detrending and scaling follow :func:`scipy.signal.csd` with
     ``average='mean'`` and ``scaling='density'`` (one-sided), so ``matrix[:, i, j]`` equals
     ``scipy.signal.csd(x_i, x_j, ...)`` to rounding; but each channel is transformed once
-    instead of once per pair.
+    instead of once per pair. The segments are processed a cache-sized chunk at a time
+    (:func:`~emfc_ros.core.ident.welch.welch_sums`), so no copy of the whole segmented record
+    is made.
 
     Parameters
     ----------
-    channels : ndarray, shape (C, N)
-        Equally long records on one sample clock.
+    channels : ndarray, shape (C, N), or sequence of C ndarrays of shape (N,)
+        Equally long records on one sample clock (a sequence avoids stacking them).
     sample_rate_Hz : float
         Sample rate [Hz].
     nperseg : int, optional
@@ -364,10 +379,8 @@ def cross_spectra(channels: np.ndarray, sample_rate_Hz: float, *,
         If the settings do not fit the record.
     """
     fs = check_rate(sample_rate_Hz)
-    x = np.asarray(channels, dtype=float)
-    if x.ndim != 2 or x.shape[1] == 0:
-        raise IdentificationError(f'channels must have shape (C, N), got {x.shape}')
-    n = x.shape[1]
+    records = _channel_records(channels)
+    n = records[0].size
     if nperseg is None:
         nperseg = default_nperseg(n)
     nperseg = int(nperseg)
@@ -379,6 +392,9 @@ def cross_spectra(channels: np.ndarray, sample_rate_Hz: float, *,
     noverlap = int(noverlap)
     if not 0 <= noverlap < nperseg:
         raise IdentificationError(f'noverlap must be in [0, {nperseg - 1}], got {noverlap}')
+    if detrend not in ('constant', 'linear', False):
+        raise IdentificationError(f"detrend must be 'constant', 'linear' or False, got "
+                                  f'{detrend!r}')
     if isinstance(window, np.ndarray):
         win = np.asarray(window, dtype=float)
         if win.shape != (nperseg,):
@@ -388,29 +404,8 @@ def cross_spectra(channels: np.ndarray, sample_rate_Hz: float, *,
         win = sps.get_window(window, nperseg)
     step = nperseg - noverlap
     n_seg = (n - noverlap) // step
-    segments = np.lib.stride_tricks.sliding_window_view(x, nperseg, axis=-1)[:, ::step]
-    segments = segments[:, :n_seg]
-    if detrend == 'constant':
-        # FFT((x - mean) w) = FFT(x w) - mean FFT(w): segment means from a cumulative sum
-        # save a pass over the overlapping (non-contiguous) segment view.
-        csum = np.concatenate((np.zeros((x.shape[0], 1)), np.cumsum(x, axis=1)), axis=1)
-        starts = np.arange(n_seg) * step
-        means = (csum[:, starts + nperseg] - csum[:, starts]) / nperseg
-        spectra = np.fft.rfft(segments * win, axis=-1)
-        spectra -= means[:, :, None] * np.fft.rfft(win)[None, None, :]
-    else:
-        if detrend:
-            segments = sps.detrend(segments, axis=-1, type=detrend)
-        spectra = np.fft.rfft(segments * win, axis=-1)            # (C, K, F)
-    scale = 1.0 / (fs * float(np.sum(win * win)) * n_seg)
-    n_ch = x.shape[0]
-    matrix = np.empty((spectra.shape[-1], n_ch, n_ch), dtype=complex)
-    for i in range(n_ch):
-        conj_i = np.conj(spectra[i])
-        for j in range(i, n_ch):
-            matrix[:, i, j] = np.einsum('kf,kf->f', conj_i, spectra[j]) * scale
-            matrix[:, j, i] = np.conj(matrix[:, i, j])
-        matrix[:, i, i] = matrix[:, i, i].real
+    matrix = welch_sums(records, nperseg, step, n_seg, win, detrend)
+    matrix *= 1.0 / (fs * float(np.sum(win * win)) * n_seg)
     if nperseg % 2:
         matrix[1:] *= 2.0
     else:
@@ -479,9 +474,19 @@ def estimate_frf(input: np.ndarray, output: np.ndarray, sample_rate_Hz: float, *
     """
     if estimator not in ESTIMATORS:
         raise IdentificationError(f'estimator must be one of {ESTIMATORS}, got {estimator!r}')
-    u, y = as_records(('input', 'output'), (input, output))
-    spec = cross_spectra(np.vstack((u, y)), sample_rate_Hz, nperseg=nperseg, noverlap=noverlap,
-                         window=window, detrend=detrend)
+    names = ('input', 'output')
+    # The finiteness check rides on the spectra: a NaN or infinite sample in any segment makes
+    # the sums non-finite; only the samples after the last segment are checked directly.
+    u, y = same_clock_records(names, (input, output), IdentificationError, check_finite=False)
+    with np.errstate(invalid='ignore', over='ignore'):     # checked just below
+        spec = cross_spectra((u, y), sample_rate_Hz, nperseg=nperseg, noverlap=noverlap,
+                             window=window, detrend=detrend)
+    used = (spec.n_segments - 1) * (spec.nperseg - spec.noverlap) + spec.nperseg
+    if not (np.isfinite(spec.matrix).all() and np.isfinite(u[used:]).all()
+            and np.isfinite(y[used:]).all()):
+        as_records(names, (u, y))     # raises, naming the record
+        raise IdentificationError('the spectra are not finite: the records hold values too '
+                                  'large to square (above about 1e150)')
     m = spec.matrix[1:]
     sxx, syy, sxy = m[:, 0, 0].real, m[:, 1, 1].real, m[:, 0, 1]
     with np.errstate(divide='ignore', invalid='ignore'):

@@ -54,6 +54,7 @@ from typing import Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 import numpy as np
 from scipy import optimize
 
+from emfc_ros.core.blas_threads import with_single_blas_thread
 from emfc_ros.core.ident.covariance import inverse, line_score_covariance, score_covariance
 from emfc_ros.core.ident.errors import IdentificationError
 from emfc_ros.core.ident.metrics import fit_percent, input_correlation_test, whiteness_test
@@ -351,6 +352,7 @@ class _Problem:
         return [2 * w.size for w in self.noise_weights]
 
 
+@with_single_blas_thread
 def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
                 parameters: Sequence[ParameterSpec], *, method: str = 'least_squares',
                 options: Optional[PatternSearchOptions] = None,

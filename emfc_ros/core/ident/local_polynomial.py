@@ -26,6 +26,7 @@ from typing import List, Optional, Sequence
 
 import numpy as np
 
+from emfc_ros.core.blas_threads import with_single_blas_thread
 from emfc_ros.core.ident.errors import IdentificationError
 from emfc_ros.core.ident.frf import FrequencyResponseData
 
@@ -55,6 +56,7 @@ def auto_half_width(n_inputs: int, degree: int, dof: int = DEFAULT_DOF) -> int:
     return int(np.ceil((unknowns + dof - 1) / 2.0))
 
 
+@with_single_blas_thread
 def local_polynomial_frf(inputs: Sequence[np.ndarray], output: np.ndarray,
                          sample_rate_Hz: float, *, degree: int = 2,
                          half_width: Optional[int] = None, stride: Optional[int] = None,

@@ -98,7 +98,7 @@ def estimate_two_input_frf(inputs: Sequence[np.ndarray], output: np.ndarray,
     if len(input_units) != 2:
         raise IdentificationError('input_units must hold two strings')
     u1, u2, y = as_records(('inputs[0]', 'inputs[1]', 'output'), (inputs[0], inputs[1], output))
-    spec = cross_spectra(np.vstack((u1, u2, y)), sample_rate_Hz, nperseg=nperseg,
+    spec = cross_spectra((u1, u2, y), sample_rate_Hz, nperseg=nperseg,
                          noverlap=noverlap, window=window, detrend=detrend)
     if spec.n_effective <= 2.0:
         raise IdentificationError(f'two inputs need more than 2 independent averages, got '

@@ -31,6 +31,7 @@ import warnings
 import numpy as np
 from scipy import stats
 
+from emfc_ros.core.blas_threads import with_single_blas_thread
 from emfc_ros.core.ident import balance_fit
 from emfc_ros.core.ident.balance_result import (BalanceGreyboxResult, greybox_dict,
                                                 parameter_table, Setting)
@@ -459,6 +460,7 @@ def _compensate(frd: FrequencyResponseData, fs: float, hold: str) -> FrequencyRe
                                  frd.input_unit, frd.output_unit, details)
 
 
+@with_single_blas_thread
 def _frf_step(result: IdentificationResult, channels: Mapping[str, np.ndarray],
               forces: Mapping[str, np.ndarray], by_name: Mapping[str, Span],
               report: Progress) -> None:
@@ -545,6 +547,7 @@ def _spacing(frd: FrequencyResponseData) -> float:
 # ---------------------------------------------------------------- step (b)
 
 
+@with_single_blas_thread
 def _tf_step(result: IdentificationResult, report: Progress) -> None:
     cfg = result.config.tf_fit
     candidates = list(zip(cfg.numerator_orders, cfg.denominator_orders))
@@ -615,6 +618,7 @@ def find_plateaus(setpoint: np.ndarray, sample_rate_Hz: float, settle_s: float,
     return [(int(a + settle), int(b)) for a, b in zip(starts, stops) if b - a - settle >= shortest]
 
 
+@with_single_blas_thread
 def _static_step(result: IdentificationResult, channels: Mapping[str, np.ndarray],
                  forces: Mapping[str, np.ndarray], spans: Sequence[Span]) -> None:
     cfg = result.config.static
@@ -682,6 +686,7 @@ def _static_step(result: IdentificationResult, channels: Mapping[str, np.ndarray
 # ---------------------------------------------------------------- step (d)
 
 
+@with_single_blas_thread
 def _greybox_step(result: IdentificationResult, channels: Mapping[str, np.ndarray],
                   spans: Sequence[Span], report: Progress) -> None:
     cfg = result.config

@@ -38,6 +38,7 @@ import numpy as np
 from scipy import linalg, optimize
 from scipy import signal as sps
 
+from emfc_ros.core.blas_threads import with_single_blas_thread
 from emfc_ros.core.ident.errors import IdentificationError
 from emfc_ros.core.ident.frf import FrequencyResponseData
 from emfc_ros.core.ident.modal import Mode, quadratic_mode, root_modes
@@ -169,6 +170,7 @@ class OrderSelection:
     table: Tuple[dict, ...]
 
 
+@with_single_blas_thread
 def fit_transfer_function(frd: FrequencyResponseData, numerator_order: int,
                           denominator_order: int, *, use_std: bool = True,
                           refine: bool = True, sk_iterations: int = 50,
@@ -269,6 +271,7 @@ def fit_transfer_function(frd: FrequencyResponseData, numerator_order: int,
                                frd.unit)
 
 
+@with_single_blas_thread
 def select_order(frd: FrequencyResponseData, candidates: Sequence[Tuple[int, int]], *,
                  criterion: str = 'bic', **options) -> OrderSelection:
     """
