@@ -5,7 +5,7 @@ package.xml declares what the installed code imports (the stand-in for ``rosdep 
 dependencies; it needs a ROS distribution and its database, which are not here. This checks
 the input it reads: every ROS package and library the installed modules import is an
 ``exec_depend`` (Python libraries under their rosdep keys), except the libraries the README
-says to install with pip (``rosbags``, ``mcap``) and the optional extras (``numba``: ``fast``,
+says to install with pip (``rosbags``, ``mcap``, ``threadpoolctl``) and the optional extras (``numba``: ``fast``,
 ``matplotlib``: ``plot``).
 """
 
@@ -17,8 +17,9 @@ import xml.etree.ElementTree as ElementTree
 REPO = Path(__file__).resolve().parents[2]
 #: rosdep keys of the Python libraries.
 ROSDEP_KEYS = {'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'yaml': 'python3-yaml'}
-#: Not from rosdep: the README's `pip install rosbags mcap`, and the optional extras.
-PIP_ONLY = {'rosbags', 'mcap', 'numba', 'matplotlib'}
+#: Not from rosdep: the README's `pip install rosbags mcap threadpoolctl`, and the optional
+#: extras.
+PIP_ONLY = {'rosbags', 'mcap', 'threadpoolctl', 'numba', 'matplotlib'}
 
 
 def imported_top_level(root: Path) -> set:
@@ -40,6 +41,6 @@ def test_every_import_is_an_exec_depend_or_a_documented_pip_install():
     assert declared - needed == set(), 'in package.xml but never imported'
     assert manifest.find('export/build_type').text == 'ament_python'
     readme = (REPO / 'README.md').read_text()
-    assert 'pip install rosbags mcap' in readme
+    assert 'pip install rosbags mcap threadpoolctl' in readme
     for extra, lib in (('fast', 'numba'), ('plot', 'matplotlib')):
         assert f"'{extra}': ['{lib}" in (REPO / 'setup.py').read_text()
