@@ -972,17 +972,15 @@ def _run(args: argparse.Namespace, ctrl_c: CtrlC) -> int:
     t0 = time.monotonic()
     live: Dict[str, Any] = {}
     print(f'emfc-experiment: {plan.name} on the {plan.target}, output {out}', flush=True)
-    pool = None
+    # The plot workers start now: they import matplotlib on the other core while this process
+    # sets up the nodes and plays the experiment.
+    pool = None if args.no_identify else plot_pool(plan)
     try:
         info = record(plan, out, phases, ctrl_c, live)
         live['recorded'] = True
         ctrl_c.check()                  # pressed while the nodes were shut down
         ctrl_c.deferred = False         # identifying: Ctrl-C stops at once
-        if not args.no_identify:
-            pool = plot_pool(plan)
-            lines = identify(plan, info, out, phases, pool)
-        else:
-            lines = []
+        lines = [] if args.no_identify else identify(plan, info, out, phases, pool)
     except KeyboardInterrupt:
         ctrl_c.requested = ctrl_c.deferred = True       # a second Ctrl-C is ignored now
         phases.stop()

@@ -769,7 +769,8 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
         fit = fit_greybox(simulate, data, specs, method=gcfg.method, options=options,
                           max_nfev=max_nfev, noise_weights=weights, transients=transients,
                           tolerance=TIME_DOMAIN_TOLERANCE, workers=simulation_workers(model),
-                          output_derivatives=model.output_derivatives)
+                          output_derivatives=model.output_derivatives,
+                          residual_tests=not gcfg.noise_weighting)
     except (IdentificationError, ValueError, RuntimeError) as exc:
         verdict.failures.append(f'greybox: {exc}')
         return None, verdict

@@ -442,7 +442,8 @@ def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
                 noise_weights: Optional[Sequence[np.ndarray]] = None,
                 transients: Optional[Sequence[np.ndarray]] = None,
                 tolerance: float = 1.0e-8, workers: int = 1,
-                output_derivatives: Optional[Derivatives] = None) -> GreyboxResult:
+                output_derivatives: Optional[Derivatives] = None,
+                residual_tests: bool = True) -> GreyboxResult:
     """
     Fit the free parameters of a simulation to measured sections.
 
@@ -496,6 +497,9 @@ def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
         the best and the worst determined direction (4 simulations) and takes them for the
         covariance when they agree within :data:`DERIVATIVE_TOLERANCE`, else the central
         differences in every parameter.
+    residual_tests : bool
+        Run the whiteness and input-correlation tests of each section (False: NaN, for a
+        caller that tests the residuals its own way).
 
     Returns
     -------
@@ -597,7 +601,7 @@ def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
     errors = {s.name: 0.0 for s in parameters}
     for spec, value in zip(free, se):
         errors[spec.name] = float(value)
-    fits = _section_fits(problem, theta, max_lag)
+    fits = _section_fits(problem, theta, max_lag, residual_tests)
     return GreyboxResult(values, errors, corr, tuple(s.name for s in free), cost_final,
                          problem.evaluations, opt_evals, time.perf_counter() - start, method,
                          success, reason, fits, cov,
@@ -898,7 +902,8 @@ def prewhitened(err: np.ndarray, weights: np.ndarray,
     return np.fft.irfft(e, err.size)
 
 
-def _section_fits(problem: _Problem, theta: np.ndarray, max_lag: int) -> Tuple[SectionFit, ...]:
+def _section_fits(problem: _Problem, theta: np.ndarray, max_lag: int,
+                  tests: bool = True) -> Tuple[SectionFit, ...]:
     outs = problem.outputs(theta)
     fits = []
     weights = problem.noise_weights or [None] * len(problem.sections)
@@ -907,9 +912,10 @@ def _section_fits(problem: _Problem, theta: np.ndarray, max_lag: int) -> Tuple[S
         y2, yh2 = y.reshape(y.shape[0], -1), yh.reshape(y.shape[0], -1)
         u2 = np.asarray(sec.inputs, dtype=float).reshape(y.shape[0], -1)
         err = y2 - yh2
-        tested = err if nw is None else prewhitened(err[:, 0], nw, q)[:, None]
         white, cross = [], []
-        for c in range(err.shape[1]):
+        if tests:
+            tested = err if nw is None else prewhitened(err[:, 0], nw, q)[:, None]
+        for c in range(err.shape[1] if tests else 0):
             if y.shape[0] >= max_lag + 2 and np.any(err[:, c] != err[0, c]):
                 white.append(whiteness_test(tested[:, c], max_lag).fraction_inside)
                 for j in range(u2.shape[1]):

@@ -20,6 +20,7 @@ import multiprocessing
 import os
 from pathlib import Path
 import re
+import signal
 from types import SimpleNamespace
 from typing import Any, Dict, List, Optional, Sequence, Tuple
 
@@ -170,6 +171,9 @@ def draw(job: PlotJob) -> Optional[Path]:
 
 def _warm_up() -> None:
     """Worker start: matplotlib and the plot module imported before the first job."""
+    # Ctrl-C in a terminal reaches the whole process group: the caller decides what to do
+    # (and stops the workers); a worker must not print a traceback of its own.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     from emfc_ros.core.report import plots
     plots.matplotlib_available()
 
