@@ -972,8 +972,9 @@ def _run(args: argparse.Namespace, ctrl_c: CtrlC) -> int:
     t0 = time.monotonic()
     live: Dict[str, Any] = {}
     print(f'emfc-experiment: {plan.name} on the {plan.target}, output {out}', flush=True)
-    # The plot workers start now: they import matplotlib on the other core while this process
-    # sets up the nodes and plays the experiment.
+    # The plot workers start now, in the background: their fork server imports matplotlib
+    # and the identification's modules on the other core while this process imports ROS and
+    # sets up the nodes; the workers are forked from it, ready before the first plot.
     pool = None if args.no_identify else plot_pool(plan)
     try:
         info = record(plan, out, phases, ctrl_c, live)

@@ -21,6 +21,8 @@ import os
 from pathlib import Path
 import re
 import signal
+import threading
+import time
 from types import SimpleNamespace
 from typing import Any, Dict, List, Optional, Sequence, Tuple
 
@@ -174,17 +176,51 @@ def _warm_up() -> None:
     # Ctrl-C in a terminal reaches the whole process group: the caller decides what to do
     # (and stops the workers); a worker must not print a traceback of its own.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # what unpickling the jobs needs (the result's classes) and what drawing them needs
+    import emfc_ros.core.ident.pipeline  # noqa: F401
     from emfc_ros.core.report import plots
-    plots.matplotlib_available()
+    if not plots.matplotlib_available():
+        return
+    # one small figure drawn to memory: fonts, glyph and text-layout caches filled before the
+    # first real figure (its first drawing took twice as long as the next)
+    import io
+    fig = plots._figure(figsize=(2.0, 1.5))
+    ax = fig.subplots()
+    ax.semilogx([1.0, 10.0, 100.0], [0.0, 1.0, 0.5], '.-', label='warm-up')
+    ax.set_title('warm-up')
+    ax.set_ylabel('[1]')
+    ax.legend(fontsize=8)
+    fig.savefig(io.BytesIO(), format='png', dpi=plots.DPI)
 
 
 def _ready() -> int:
     return os.getpid()
 
 
+def _context() -> Any:
+    """
+    The multiprocessing context of the workers.
+
+    ``forkserver`` where there is one (Linux): a clean server process, started once, imports
+    the plotting modules and forks each worker from itself, so that the imports are paid once
+    for all workers; ``spawn`` elsewhere. Never ``fork``: the caller has DDS threads.
+    """
+    if 'forkserver' in multiprocessing.get_all_start_methods():
+        ctx = multiprocessing.get_context('forkserver')
+        ctx.set_forkserver_preload(['emfc_ros.core.report.background',
+                                    'emfc_ros.core.ident.pipeline',
+                                    'emfc_ros.core.report.plots', 'matplotlib.pyplot'])
+        return ctx
+    return multiprocessing.get_context('spawn')
+
+
 class PlotPool:
     """
     Worker processes drawing report figures.
+
+    The workers are started by a thread of this object (starting them waits for the fork
+    server's imports, about a second): the caller goes on at once, and figures submitted
+    before they are ready are queued.
 
     Parameters
     ----------
@@ -204,14 +240,32 @@ class PlotPool:
             except AttributeError:      # not on Linux
                 cpus = os.cpu_count() or 1
             workers = max(1, min(2, cpus))
-        self._pool = ProcessPoolExecutor(max_workers=int(workers),
-                                         mp_context=multiprocessing.get_context('spawn'),
-                                         initializer=_warm_up)
+        self._workers = int(workers)
+        self._pool: Optional[ProcessPoolExecutor] = None
         self._futures: Dict[Path, Future] = {}
+        self._pending: List[PlotJob] = []
+        self._lock = threading.Lock()
+        self._start_error: Optional[BaseException] = None
         self.errors: List[str] = []
-        # start the workers now: they import matplotlib while the caller works
-        for _ in range(int(workers)):
-            self._pool.submit(_ready)
+        self._starter = threading.Thread(target=self._start, name='plot-pool-start',
+                                         daemon=True)
+        self._starter.start()
+
+    def _start(self) -> None:
+        try:
+            pool = ProcessPoolExecutor(max_workers=self._workers, mp_context=_context(),
+                                       initializer=_warm_up)
+            # start the workers now: they import matplotlib while the caller works
+            for _ in range(self._workers):
+                pool.submit(_ready)
+        except BaseException as exc:    # reported by wait(): the plots are then missing
+            self._start_error = exc
+            return
+        with self._lock:
+            self._pool = pool
+            pending, self._pending = self._pending, []
+            for job in pending:
+                self._futures[job.path] = pool.submit(draw, job)
 
     def submit(self, jobs: Sequence[PlotJob]) -> None:
         """
@@ -222,10 +276,17 @@ class PlotPool:
         jobs : sequence of PlotJob
             The figures.
         """
-        for job in jobs:
-            if job.path not in self._futures:
+        with self._lock:
+            queued = set(self._futures) | {job.path for job in self._pending}
+            for job in jobs:
+                if job.path in queued:
+                    continue
+                queued.add(job.path)
                 job.path.parent.mkdir(parents=True, exist_ok=True)
-                self._futures[job.path] = self._pool.submit(draw, job)
+                if self._pool is None:
+                    self._pending.append(job)
+                else:
+                    self._futures[job.path] = self._pool.submit(draw, job)
 
     def submit_step(self, step: str, result: Any, out: Path) -> None:
         """
@@ -258,12 +319,15 @@ class PlotPool:
         list of Path
             The files written; failures are appended to :attr:`errors`.
         """
-        import time
-
         deadline = time.monotonic() + timeout_s
+        self._starter.join(timeout_s)
+        if self._start_error is not None:
+            self.errors.append(f'the plot workers did not start: {self._start_error!r}')
+            return []
         written = []
         for path in paths:
-            future = self._futures.get(Path(path))
+            with self._lock:
+                future = self._futures.get(Path(path))
             if future is None:
                 self.errors.append(f'{Path(path).name}: never submitted')
                 continue
@@ -278,7 +342,9 @@ class PlotPool:
 
     def close(self) -> None:
         """Stop the workers (queued figures not yet started are dropped)."""
-        self._pool.shutdown(wait=True, cancel_futures=True)
+        self._starter.join()
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
 
     def __enter__(self) -> 'PlotPool':
         return self
