@@ -11,6 +11,9 @@ the plant's measurement description announces each change at its sample. Zero wi
 watch ``ros2 topic echo /emfc/weighing/reading`` (``docs/weighing.md``, section 8).
 
     ros2 launch emfc_ros weigh.launch.py load:=0:0,2:0.0734829
+
+Like every launch file it takes ``discovery_range:=`` (the nodes'
+``ROS_AUTOMATIC_DISCOVERY_RANGE``; default ``LOCALHOST``).
 """
 
 from launch import LaunchDescription
@@ -21,10 +24,14 @@ from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
 
 
+#: Values of ROS_AUTOMATIC_DISCOVERY_RANGE (rcl).
+DISCOVERY_RANGES = ['LOCALHOST', 'SUBNET', 'OFF', 'SYSTEM_DEFAULT']
+
+
 def generate_launch_description():
     """Describe the plant simulator in closed loop, its excitation and the weighing node."""
     share = FindPackageShare('emfc_ros')
-    env = {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+    env = {'ROS_AUTOMATIC_DISCOVERY_RANGE': LaunchConfiguration('discovery_range')}
     balance = LaunchConfiguration('balance_file')
     return LaunchDescription([
         DeclareLaunchArgument(
@@ -35,6 +42,12 @@ def generate_launch_description():
                                           'sample clock (e.g. 0:0,2:0.0734829); empty: none'),
         DeclareLaunchArgument('seed', default_value='0',
                               description='seed of the simulated noise'),
+        DeclareLaunchArgument(
+            'discovery_range', default_value='LOCALHOST', choices=DISCOVERY_RANGES,
+            description='ROS_AUTOMATIC_DISCOVERY_RANGE of the nodes: LOCALHOST keeps '
+                        'discovery on this computer (ROS_STATIC_PEERS in the environment '
+                        'adds named computers: README, Two computers); SUBNET multicasts '
+                        'it on every network this computer is on'),
         Node(
             package='emfc_ros', executable='plant_simulator', name='plant_simulator',
             namespace='emfc', output='screen', additional_env=env,

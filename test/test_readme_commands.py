@@ -105,7 +105,7 @@ def test_the_registry_reads_back_every_line_of_the_readme_blocks():
                             'use_sim_time:=true') and c.endswith('/clock]') for c in commands)
     assert 'ros2 param set /plant_simulator load_mass_kg 0.05' in commands      # indented
     assert 'emfc-simulate EXCITATION -o OUT' in commands                        # table
-    assert 'emfc-device-emulator --control-crossover-Hz 100' in commands         # prose
+    assert 'emfc-device-emulator --control-crossover-Hz 130' in commands         # prose
     assert not any(c.startswith('emfc-*') or c.startswith('emfc-<') for c in commands)
     registry = load_registry()
     assert all(entry['not_here'] for entry in registry.values() if 'not_here' in entry)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import signal
 import sys
+import time
 from typing import Callable, List, Optional
 
 import rclpy
@@ -60,10 +61,15 @@ def run_node(factory: Callable[[], Node], args: Optional[List[str]] = None,
         why = 'interrupted (Ctrl-C or shutdown request)'
     except Exception:
         # Ctrl-C during construction: rclpy shut the context down under the constructor,
-        # whose next call into rcl fails. Anything else is a genuine error.
-        if rclpy.ok():
+        # whose next call into rcl fails. Ctrl-C during the spin can race the same way: the
+        # executor takes a message while rclpy's signal handler shuts the context down, and
+        # the take fails with a RuntimeError a moment before rclpy.ok() turns False (seen
+        # under load; ros/joint_state_publisher#117 reports the same). Anything else is a
+        # genuine error.
+        if _context_still_ok(SHUTDOWN_RACE_S):
             raise
-        why = 'interrupted during start-up'
+        why = 'interrupted (Ctrl-C or shutdown request)' if node is not None else \
+            'interrupted during start-up'
     finally:
         # A second Ctrl-C must not cut the cleanup short (the recorder closes its bag here):
         # from now on SIGINT is ignored; the cleanup is short and bounded.
@@ -74,6 +80,20 @@ def run_node(factory: Callable[[], Node], args: Optional[List[str]] = None,
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+#: How long an exception may precede the shutdown that caused it [s] (see run_node).
+SHUTDOWN_RACE_S = 0.5
+
+
+def _context_still_ok(within_s: float) -> bool:
+    """Whether the default context is still up ``within_s`` [s] from now (polled)."""
+    deadline = time.monotonic() + within_s
+    while rclpy.ok():
+        if time.monotonic() >= deadline:
+            return True
+        time.sleep(0.01)
+    return False
 
 
 def node_main(factory: Callable[[], Node], name: str,

@@ -89,7 +89,11 @@ def test_identifier_counts_hostile_descriptions_and_takes_a_valid_one(executor, 
 
 
 def test_weighing_counts_hostile_descriptions_and_takes_a_valid_one(executor, ros_context):
-    node = WeighingNode(context=ros_context, parameter_overrides=[])
+    # VALID states no channel resolution (extra.resolution), which the weighing node needs
+    # for its uncertainty budget: the converter steps are given as parameters instead.
+    node = WeighingNode(context=ros_context, parameter_overrides=[
+        Parameter('current_resolution_A', value=1.0e-7),
+        Parameter('dynamic_position_noise_m_rms', value=1.0e-9)])
     executor.add_node(node)
     pub = Publisher(ros_context, executor, ['measurements/description'])
     assert ros_harness.spin_until(executor, pub.matched, TIMEOUT_S)

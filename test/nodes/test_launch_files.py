@@ -30,7 +30,7 @@ import yaml
 
 from emfc_ros.core.bag import read_streams
 from emfc_ros.core.config import unflatten
-from emfc_ros.core.signals.spec import experiment_from_config, load_experiment_file
+from emfc_ros.core.signals.spec import load_experiment_file
 from emfc_ros.nodes import daq_bridge, plant_simulator, signal_generator, weighing
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, LATCHED_QOS, msg_to_block, msg_to_description)

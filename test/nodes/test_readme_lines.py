@@ -267,7 +267,7 @@ def test_device_emulator_and_bridge_lines_as_typed(tmp_path, processes, executor
 
 def test_the_table_emulator_lines_open_and_close_the_loop(
         tmp_path, processes, executor, ros_context):
-    """``emfc-device-emulator`` (table) and ``... --control-crossover-Hz 100`` (prose)."""
+    """``emfc-device-emulator`` (table) and ``... --control-crossover-Hz 130`` (prose)."""
     positions = {}
     for k, argv in enumerate([readme_lines.readme_argv('emfc-device-emulator'),
                               readme_lines.readme_argv('emfc-device-emulator',
