@@ -14,6 +14,10 @@ setpoints, and each section's simulate call returns its slice: the sections then
 state the previous sections left, as in the experiment. Sections are recognised because their
 input arrays are views into the recorded setpoints (as :meth:`BalanceGreyboxModel.sections`
 builds them); any other input array is simulated on its own, from rest.
+
+:meth:`BalanceGreyboxModel.output_derivatives` gives the fit its Jacobian from the linearised
+model (:mod:`~emfc_ros.core.ident.linear_sensitivity`), which the fit checks against the
+simulation (issue 14).
 """
 
 from __future__ import annotations
@@ -390,7 +394,7 @@ class BalanceGreyboxModel:
 
     def simulate_record(self, values: Mapping[str, float]) -> np.ndarray:
         """
-        Simulate the whole record (cached for the last parameter set).
+        Simulate the whole record (the last few parameter sets are cached; thread-safe).
 
         Parameters
         ----------
