@@ -36,6 +36,7 @@ COMMANDS = {
     'emfc-daq-bridge': 'emfc_ros.nodes.daq_bridge:main',
     'emfc-bag-repair': 'emfc_ros.cli.bag_repair:main',
     'emfc-bag-info': 'emfc_ros.cli.bag_info:main',
+    'emfc-compile-kernels': 'emfc_ros.cli.compile_kernels:main',
     'emfc-generate': 'emfc_ros.cli.generate:main',
     'emfc-demo': 'emfc_ros.cli.demo:main',
     'emfc-experiment': 'emfc_ros.cli.experiment:main',
@@ -74,8 +75,12 @@ setup(
         'rosbags>=0.10',
         'mcap>=1.6',
         'threadpoolctl>=3.1',
+        # The compiled kernels (simulator, grey-box fit, closed loop, weighing filter). The
+        # code keeps an interpreted fallback for platforms without numba wheels.
+        'numba>=0.59',
     ] + ROS_FROM_PYPI,
     extras_require={
+        # Kept as an alias for old install lines: numba is a requirement now.
         'fast': ['numba>=0.59'],
         'plot': ['matplotlib>=3.7'],
         'test': ['pytest>=7', 'hypothesis>=6', 'mcap>=1.1', 'mcap-ros2-support>=0.5'],

@@ -4,8 +4,8 @@
 # plus what the tests and benchmarks need. Safe to run again: dependencies are installed
 # once per change of setup.py or of this script, the package itself once per change of its
 # sources (a hash of every installed file: emfc_ros/, config/, launch/, lib_wrappers/,
-# resource/, setup.py, setup.cfg, package.xml). A current venv costs well under a second
-# and prints nothing. `setup_env.sh --check` changes nothing: exit 0 when the venv is
+# resource/, setup.py, setup.cfg, package.xml), followed by emfc-compile-kernels (numba's
+# cache). A current venv costs well under a second and prints nothing. `setup_env.sh --check` changes nothing: exit 0 when the venv is
 # current, 1 (saying what is stale) when this script would install something.
 set -euo pipefail
 here=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -72,7 +72,7 @@ if [ ! -f "$deps_stamp" ]; then
   echo "setup_env: installing dependencies into $venv (first run takes a few minutes)" >&2
   # colcon needs setuptools<80 (design brief section 2).
   "$venv/bin/python" -m pip install -q 'setuptools<80' wheel 2>&1 | quiet_pip
-  "$venv/bin/python" -m pip install -q "$here[fast,plot,test]" \
+  "$venv/bin/python" -m pip install -q "$here[plot,test]" \
     'colcon-common-extensions' 'flake8>=6' 'flake8-quotes' 'flake8-import-order' \
     'flake8-docstrings' 'pep8-naming' 2>&1 | quiet_pip
   rm -f "$venv"/.emfc-deps-* "$venv"/.emfc-package-*
@@ -86,5 +86,9 @@ if [ ! -f "$package_stamp" ] || [ ! -x "$venv/bin/emfc-experiment" ]; then
   rm -f "$venv"/.emfc-package-*
   "$venv/bin/python" -m pip install -q --no-deps --no-build-isolation --force-reinstall \
     "$here" 2>&1 | quiet_pip
+  # numba's kernels into its cache now, not in the first run (the simulator's takes about
+  # 15 s; unchanged sources keep their cache across reinstalls, numba keys it by content)
+  echo "setup_env: compiling the numba kernels (emfc-compile-kernels)" >&2
+  "$venv/bin/emfc-compile-kernels" >&2
   touch "$package_stamp"
 fi

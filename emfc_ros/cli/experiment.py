@@ -36,6 +36,9 @@ from emfc_ros.core.stream_counts import CUSTOM_DATA_KEY, markdown, problems
 DEFAULT_PLAN = 'experiment_default.yaml'
 #: Longest wait for the daq_bridge to start or stop the device (its worker thread) [s].
 START_WAIT_S = 30.0
+#: Closing the recording: the bag must have stopped growing this long once every counted
+#: stream is complete [s].
+QUIET_S = 0.1
 
 
 class Phases:
@@ -266,6 +269,48 @@ def stream_counts(plan: RunPlan, total: int, rate: float, publishers: Sequence[A
     return out
 
 
+def interpreted_warning(params: Any, rate: float, total: int, load_kg: float,
+                        coupled: bool) -> str:
+    """
+    Without numba: how long the simulated experiment will take, measured on a short block.
+
+    Parameters
+    ----------
+    params : BalanceParameters
+        The simulated balance.
+    rate : float
+        Sample rate [Hz].
+    total : int
+        Samples of the experiment.
+    load_kg : float
+        Pan load [kg].
+    coupled : bool
+        Load changer coupled.
+
+    Returns
+    -------
+    str
+        The warning; empty with numba (the compiled kernel).
+    """
+    import numpy as np
+
+    from emfc_ros.core.sim.kernel import numba_available
+    from emfc_ros.core.sim.simulator import Simulator
+
+    if numba_available():
+        return ''
+    probe = 1000
+    sim = Simulator(params, rate, load_mass_kg=load_kg, load_changer_coupled=coupled,
+                    backend='numpy')
+    start = time.perf_counter()
+    sim.step_block(np.zeros((2, probe)))
+    per_second = probe / max(time.perf_counter() - start, 1e-9)
+    return (f'the simulator runs interpreted (numba is not installed, about {per_second:.0f} '
+            f'samples/s): the experiment ({total} samples) takes about '
+            f'{total / per_second / 60.0:.1f} min and the identification several minutes more '
+            f'(pip install numba: about 1 s each)')
+
+
 class ExperimentFault(RuntimeError):
     """The device did not apply the excitation as commanded (a latched fault)."""
 
@@ -371,6 +416,10 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
     bag = out / 'bag'
     ns = plan.namespace
     live.update({'total': total, 'sample_rate_Hz': rate, 'samples': 0})
+    if not on_bridge:
+        warning = interpreted_warning(params, rate, total, load_kg, coupled)
+        if warning:
+            _progress(f'  {warning}')
 
     emulator = None
     # SIGINT stays with the runner (CtrlC), so that the context lives on to close the bag.
@@ -618,16 +667,29 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
         # recorder has written as many measurement blocks, then close the bag.
         spin_until(lambda: recorder.written_messages().get(measurement_topic, 0)
                    >= seen['blocks'], 30.0)
-        # Other topics (joint states, diagnostics) trail the blocks: close once the bag has
-        # stopped growing for half a second (at most 10 s more).
+        # Other topics trail the blocks. Every stream whose publisher counts its messages
+        # (joint states, /clock, the excitation) is waited for until the recorder has them
+        # all; the uncounted ones (diagnostics, status) until the bag has stopped growing for
+        # QUIET_S (at most 10 s in all). All publishers are in this process: what they sent
+        # arrives within milliseconds.
+        counted = {}
+        for node in (device_node, generator):
+            for topic, entry in node.published_counts().items():
+                counted[topic if topic.startswith('/') else f'{ns}/{topic}'] = int(
+                    entry.get('published', 0))
         quiet = {'count': -1, 'since': time.monotonic()}
 
         def settled() -> bool:
-            count = sum(recorder.written_messages().values())
+            written = recorder.written_messages()
+            count = sum(written.values())
             if count != quiet['count']:
                 quiet['count'], quiet['since'] = count, time.monotonic()
-            return time.monotonic() - quiet['since'] > 0.5
+            if any(written.get(topic, 0) < n for topic, n in counted.items()
+                   if topic in recorded):
+                return False
+            return time.monotonic() - quiet['since'] > QUIET_S
 
+        recorded = set(recorder.recorded_topics())
         spin_until(settled, 10.0)
         written = recorder.written_messages()
         # No silent loss: what each stream owed, published, left out and recorded, in the
@@ -696,7 +758,8 @@ def _device_summary(plan: RunPlan, emulator: Any) -> str:
     return f'daq_bridge, {bridge.backend} back-end'
 
 
-def identify(plan: RunPlan, info: dict, out: Path, phases: Phases) -> List[str]:
+def identify(plan: RunPlan, info: dict, out: Path, phases: Phases,
+             pool: Optional[Any] = None) -> List[str]:
     """
     Read the bag back and run the identification; return summary lines.
 
@@ -710,6 +773,8 @@ def identify(plan: RunPlan, info: dict, out: Path, phases: Phases) -> List[str]:
         The output folder.
     phases : Phases
         Timing of the phases.
+    pool : PlotPool, optional
+        Workers drawing the report's plots (:mod:`emfc_ros.core.report.background`).
 
     Returns
     -------
@@ -751,32 +816,62 @@ def identify(plan: RunPlan, info: dict, out: Path, phases: Phases) -> List[str]:
                      'pipeline yet (issue 6); the run stops after recording. The bag holds '
                      'everything needed to identify later.')
         return lines
-    return lines + _run_pipeline(plan, info, streams, out, phases)
+    return lines + _run_pipeline(plan, info, streams, out, phases, pool)
 
 
 def _run_pipeline(plan: RunPlan, info: dict, streams: dict, out: Path,
-                  phases: Phases) -> List[str]:
+                  phases: Phases, pool: Optional[Any] = None) -> List[str]:
     from emfc_ros.core.ident.errors import IdentificationError
     from emfc_ros.core.ident.from_bag import identify_bag
 
     phases.start('identify')
+    folder = out / 'identification'
+
+    def step_done(step: str, partial: Any) -> None:
+        if pool is not None:            # its plots are drawn while the next step runs
+            pool.submit_step(step, partial, folder)
+
     # The options and the pan load come from the bag (the recorder stored them), exactly as
     # `emfc-identify BAG` takes them, so that both give the same result.
     try:
         result, _ = identify_bag(Path(info['bag']), None, namespace=plan.namespace,
-                                 progress=_pipeline_progress, streams=streams)
+                                 progress=_pipeline_progress, streams=streams,
+                                 on_step=step_done)
     except IdentificationError as exc:
         info['identification_error'] = str(exc)
         return [f'**Identification failed:** {exc}. The bag is complete; identify it again '
                 f'with `emfc-identify` once the cause is fixed.']
     phases.start('report')
     from emfc_ros.core.report import write_report
-    folder = out / 'identification'
-    write_report(result, folder)
+    write_report(result, folder, pool=pool)
     if not result.success:
         info['identification_error'] = '; '.join(result.failures)
     return [f'Identification results, plots and summary: `{folder}/` (`results.yaml`, '
             '`summary.md`).', ''] + (folder / 'summary.md').read_text().splitlines()
+
+
+def plot_pool(plan: RunPlan) -> Optional[Any]:
+    """
+    Worker processes for the report's plots, started before identifying (None: no plots).
+
+    Parameters
+    ----------
+    plan : RunPlan
+        The plan (identification enabled?).
+
+    Returns
+    -------
+    PlotPool or None
+        None when identification is disabled or matplotlib is not installed (the report then
+        says so).
+    """
+    import importlib.util
+
+    if not plan.identification.get('enabled', True) or \
+            importlib.util.find_spec('matplotlib') is None:
+        return None
+    from emfc_ros.core.report.background import PlotPool
+    return PlotPool()
 
 
 def _pipeline_progress(step: str, fraction: float, message: str) -> None:
@@ -877,12 +972,16 @@ def _run(args: argparse.Namespace, ctrl_c: CtrlC) -> int:
     t0 = time.monotonic()
     live: Dict[str, Any] = {}
     print(f'emfc-experiment: {plan.name} on the {plan.target}, output {out}', flush=True)
+    # The plot workers start now, in the background: their fork server imports matplotlib
+    # and the identification's modules on the other core while this process imports ROS and
+    # sets up the nodes; the workers are forked from it, ready before the first plot.
+    pool = None if args.no_identify else plot_pool(plan)
     try:
         info = record(plan, out, phases, ctrl_c, live)
         live['recorded'] = True
         ctrl_c.check()                  # pressed while the nodes were shut down
         ctrl_c.deferred = False         # identifying: Ctrl-C stops at once
-        lines = [] if args.no_identify else identify(plan, info, out, phases)
+        lines = [] if args.no_identify else identify(plan, info, out, phases, pool)
     except KeyboardInterrupt:
         ctrl_c.requested = ctrl_c.deferred = True       # a second Ctrl-C is ignored now
         phases.stop()
@@ -894,6 +993,9 @@ def _run(args: argparse.Namespace, ctrl_c: CtrlC) -> int:
         print(f'emfc-experiment: failed: {exc}', file=sys.stderr)
         (out / 'timing.json').write_text(json.dumps(phases.seconds, indent=2))
         return 1
+    finally:
+        if pool is not None:
+            pool.close()
     phases.stop()
     wall = time.monotonic() - t0
     timing = dict(phases.seconds, total=wall)

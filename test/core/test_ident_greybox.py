@@ -1,5 +1,5 @@
 """
-Grey-box fit of a mass-spring-damper with least squares and pattern search, and its metrics.
+Grey-box fit of a mass-spring-damper with least squares, Gauss-Newton and pattern search.
 
 Ground truth: the exact zero-order-hold response of the simulated system.
 """
@@ -63,7 +63,8 @@ def test_simulation_matches_scipy_zoh():
                                atol=1e-12)
 
 
-@pytest.mark.parametrize('method, rtol', [('least_squares', 1e-4), ('pattern_search', 1e-3)])
+@pytest.mark.parametrize('method, rtol', [('least_squares', 1e-4), ('gauss_newton', 1e-4),
+                                          ('pattern_search', 1e-3)])
 def test_noise_free_recovery(method, rtol):
     res = fit_greybox(simulate, sections(), specs(), method=method)
     for name in FREE:
@@ -77,7 +78,7 @@ def test_noise_free_recovery(method, rtol):
     assert 'stiffness' in res.summary()
 
 
-@pytest.mark.parametrize('method', ['least_squares', 'pattern_search'])
+@pytest.mark.parametrize('method', ['least_squares', 'gauss_newton', 'pattern_search'])
 def test_noisy_fit_standard_errors_cover_truth(method):
     res = fit_greybox(simulate, sections(0.05, seed=2), specs(), method=method)
     for name in FREE:
@@ -101,7 +102,7 @@ def test_standard_error_coverage_over_repeats():
     assert np.all(coverage >= 0.8), coverage
 
 
-@pytest.mark.parametrize('method', ['least_squares', 'pattern_search'])
+@pytest.mark.parametrize('method', ['least_squares', 'gauss_newton', 'pattern_search'])
 def test_bounds_respected_and_fixed_stay_fixed(method):
     seen = []
 
@@ -115,6 +116,47 @@ def test_bounds_respected_and_fixed_stay_fixed(method):
     assert all(p['mass'] == 1.0 for p in seen)
     # The truth (987 N/m) is outside: the estimate sits on the bound.
     np.testing.assert_allclose(res.parameters['stiffness'], 900.0, rtol=1e-6)
+
+
+def derivatives(scale_column=None, factor=1.0):
+    """Output derivatives by central differences of ``simulate`` (optionally one column off)."""
+    def output_derivatives(p, names, u):
+        columns = []
+        for name in names:
+            h = 1e-6 * abs(p[name])
+            up, down = dict(p, **{name: p[name] + h}), dict(p, **{name: p[name] - h})
+            d = (simulate(up, u) - simulate(down, u)) / (2.0 * h)
+            columns.append(d * (factor if name == scale_column else 1.0))
+        return np.column_stack(columns)
+    return output_derivatives
+
+
+def test_gauss_newton_takes_checked_output_derivatives_for_the_covariance():
+    data = sections(0.05, seed=4)
+    exact = fit_greybox(simulate, data, specs(), method='gauss_newton')
+    assert exact.jacobian_method.startswith('central differences')
+    given = fit_greybox(simulate, data, specs(), method='gauss_newton',
+                        output_derivatives=derivatives())
+    assert given.jacobian_method.startswith('output derivatives')
+    assert given.derivative_check < 1e-3
+    for name in FREE:
+        se = exact.standard_errors[name]
+        assert abs(given.parameters[name] - exact.parameters[name]) < 0.01 * se
+        np.testing.assert_allclose(given.standard_errors[name], se, rtol=1e-3)
+
+
+def test_wrong_output_derivatives_are_caught_and_replaced():
+    data = sections(0.05, seed=4)
+    exact = fit_greybox(simulate, data, specs(), method='gauss_newton')
+    wrong = fit_greybox(simulate, data, specs(), method='gauss_newton',
+                        output_derivatives=derivatives('damping', 1.3))
+    # the check sees the damping column 30 % off and computes the central differences
+    assert wrong.derivative_check > 0.01
+    assert wrong.jacobian_method.startswith('central differences')
+    for name in FREE:
+        se = exact.standard_errors[name]
+        assert abs(wrong.parameters[name] - exact.parameters[name]) < 0.05 * se
+        np.testing.assert_allclose(wrong.standard_errors[name], se, rtol=1e-3)
 
 
 def test_wrong_fixed_parameter_shows_in_residual_tests():

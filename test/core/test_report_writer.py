@@ -73,3 +73,48 @@ def test_report_without_matplotlib(tmp_path, monkeypatch):
 def test_report_plots_off(tmp_path, plots):
     written = write_report(small_result(), tmp_path, plots=plots)
     assert written['plots'] == [] and written['summary'][0].exists()
+
+
+def test_plots_by_the_worker_pool_are_the_report_s_plots(tmp_path):
+    """The pool draws every figure the in-process report draws, queued early or late."""
+    from emfc_ros.core.ident.offnominal import draw_balance, record_draw, TEST_SEEDS
+    from emfc_ros.core.paths import config_file
+    from emfc_ros.core.report.background import PlotPool
+    from emfc_ros.core.signals import load_experiment_file
+
+    rec = record_draw(draw_balance(TEST_SEEDS[2]), 4, experiment=load_experiment_file(
+        config_file('quick_trajectory.yaml')))
+    options = rec.options(('coil_chirp', 'load_changer_chirp'))
+    options.update({'static': {'enabled': False}, 'frf': {'two_input_sections': []}})
+    with PlotPool() as pool:
+        res = identify(rec.recording, rec.section_table, options,
+                       on_step=lambda step, partial: pool.submit_step(step, partial,
+                                                                      tmp_path / 'pool'))
+        by_pool = write_report(res, tmp_path / 'pool', pool=pool)
+        assert pool.errors == []
+    in_process = write_report(res, tmp_path / 'here')
+    names = [p.name for p in in_process['plots']]
+    assert [p.name for p in by_pool['plots']] == names
+    assert {'bode_coil_chirp.coil.png', 'coherence_load_changer_chirp.pan.png',
+            'time_coil_chirp.png', 'resid_load_changer_chirp.png', 'pole_zero.png'} <= set(names)
+    for path in by_pool['plots']:
+        assert path.read_bytes()[:4] == b'\x89PNG' and path.stat().st_size > 10000
+    assert (tmp_path / 'pool' / 'summary.md').read_text().count('.png') == \
+        (tmp_path / 'here' / 'summary.md').read_text().count('.png')
+
+
+def test_envelope_keeps_each_column_s_extremes_in_order():
+    rng = np.random.default_rng(8)
+    x = np.arange(100003) / 1e4
+    y = np.cumsum(rng.standard_normal(x.size))
+    xe, ye = plots_module.envelope(x, y, 900)
+    assert xe.size <= 2 * 900 + 4 and np.all(np.diff(xe) > 0)
+    assert (xe[0], xe[-1]) == (x[0], x[-1])
+    assert ye.min() == y.min() and ye.max() == y.max()
+    # every column's extremes survive: the drawn band is the full trace's
+    k = -(-y.size // 900)
+    for start in range(0, y.size, k * 97):
+        block = slice(start, min(start + k, y.size))
+        assert y[block].max() in ye and y[block].min() in ye
+    short_x, short_y = plots_module.envelope(x[:50], y[:50], 900)
+    np.testing.assert_array_equal(short_y, y[:50])

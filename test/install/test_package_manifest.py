@@ -5,8 +5,9 @@ package.xml declares what the installed code imports (the stand-in for ``rosdep 
 dependencies; it needs a ROS distribution and its database, which are not here. This checks
 the input it reads: every ROS package and library the installed modules import is an
 ``exec_depend`` (Python libraries under their rosdep keys), except the libraries the README
-says to install with pip (``rosbags``, ``mcap``, ``threadpoolctl``) and the optional extras (``numba``: ``fast``,
-``matplotlib``: ``plot``).
+says to install with pip (``rosbags``, ``mcap``, ``threadpoolctl``) and the optional extra
+``plot`` (``matplotlib``). numba is a requirement (issue 14): in ``install_requires`` and in
+``package.xml`` under its rosdep key ``python3-numba``; the ``fast`` extra stays as an alias.
 """
 
 import ast
@@ -16,10 +17,11 @@ import xml.etree.ElementTree as ElementTree
 
 REPO = Path(__file__).resolve().parents[2]
 #: rosdep keys of the Python libraries.
-ROSDEP_KEYS = {'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'yaml': 'python3-yaml'}
+ROSDEP_KEYS = {'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'yaml': 'python3-yaml',
+               'numba': 'python3-numba'}
 #: Not from rosdep: the README's `pip install rosbags mcap threadpoolctl`, and the optional
-#: extras.
-PIP_ONLY = {'rosbags', 'mcap', 'threadpoolctl', 'numba', 'matplotlib'}
+#: extra.
+PIP_ONLY = {'rosbags', 'mcap', 'threadpoolctl', 'matplotlib'}
 
 
 def imported_top_level(root: Path) -> set:
@@ -42,5 +44,25 @@ def test_every_import_is_an_exec_depend_or_a_documented_pip_install():
     assert manifest.find('export/build_type').text == 'ament_python'
     readme = (REPO / 'README.md').read_text()
     assert 'pip install rosbags mcap threadpoolctl' in readme
+    setup_py = (REPO / 'setup.py').read_text()
     for extra, lib in (('fast', 'numba'), ('plot', 'matplotlib')):
-        assert f"'{extra}': ['{lib}" in (REPO / 'setup.py').read_text()
+        assert f"'{extra}': ['{lib}" in setup_py
+
+
+def _install_requires() -> list:
+    tree = ast.parse((REPO / 'setup.py').read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.keyword) and node.arg == 'install_requires':
+            value = node.value
+            if isinstance(value, ast.BinOp):        # [...] + ROS_FROM_PYPI
+                value = value.left
+            return [ast.literal_eval(e) for e in value.elts]
+    raise AssertionError('setup.py has no install_requires')
+
+
+def test_numba_is_a_requirement_and_an_exec_depend():
+    # `pip install .` gets the compiled kernels (issue 14 item 3)
+    requires = _install_requires()
+    assert any(r.startswith('numba') for r in requires), requires
+    manifest = ElementTree.parse(REPO / 'package.xml').getroot()
+    assert 'python3-numba' in {e.text.strip() for e in manifest.iter('exec_depend')}

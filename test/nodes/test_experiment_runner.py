@@ -275,6 +275,36 @@ def test_a_failed_identification_exits_1_and_keeps_bag_and_report(tmp_path):
     assert '**Identification FAILED**' in (out / 'summary.md').read_text()
 
 
+@pytest.mark.slow
+def test_the_quick_plan_as_typed(tmp_path):
+    """``emfc-experiment config/experiment_quick.yaml``: 10 s, the mechanics within 1 %."""
+    argv = readme_lines.readme_argv('emfc-experiment config/experiment_quick.yaml')
+    (tmp_path / 'config').symlink_to(REPO / 'config')     # as in the checkout
+    result = subprocess.run(argv, capture_output=True, text=True, timeout=900, cwd=tmp_path,
+                            env=ros_harness.child_environment())
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    made = re.search(r'^emfc-experiment: quick-identification on the simulator, output (\S+)$',
+                     result.stdout, re.M)
+    assert made, result.stdout[-3000:]
+    out = tmp_path / made.group(1)
+    results = yaml.safe_load((out / 'identification' / 'results.yaml').read_text())
+    assert results['n_samples'] == 100000                  # 10 s at 10 kHz
+    assert results['status']['success'] is True, results['status']
+    assert (out / 'identification' / 'bode_coil_chirp.coil.png').is_file()
+    assert (out / 'identification' / 'time_load_changer_chirp.png').is_file()
+    greybox = results['greybox']
+    truth = BalanceParameters.load_yaml(str(config_file('balance_default.yaml'))).mechanics
+    for name in ('c1_Nm_per_rad', 'd1_Nms_per_rad', 'c2_Nm_per_rad', 'd2_Nms_per_rad'):
+        row = greybox['parameters'][name]
+        value, std = row['value'], row['standard_error']
+        true = getattr(truth, name)
+        assert abs(value / true - 1.0) < 0.01, (name, value, true)
+        # the error is what the reported uncertainty says it may be
+        assert abs(value - true) < 4.0 * std, (name, value, true, std)
+    assert problems(from_mapping(yaml.safe_load(
+        read_metadata(out / 'bag')['custom_data'][CUSTOM_DATA_KEY]))) == []
+
+
 def test_bad_plan_is_refused_with_the_key(tmp_path):
     plan = tmp_path / 'plan.yaml'
     plan.write_text('run:\n  experiment_files: [nothing.yaml]\n  target: simulator\n')

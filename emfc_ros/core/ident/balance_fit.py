@@ -36,6 +36,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import os
 from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
@@ -60,6 +61,7 @@ from emfc_ros.core.ident.noise_model import whitening_weights
 from emfc_ros.core.ident.pattern_search import PatternSearchOptions
 from emfc_ros.core.model.linear import linearise
 from emfc_ros.core.model.load import loaded
+from emfc_ros.core.sim.kernel import resolved_backend
 
 Progress = Callable[[str, float, str], None]
 
@@ -68,6 +70,8 @@ Progress = Callable[[str, float, str], None]
 #: shipped trajectory) leaves the parameters within about 0.1 standard uncertainty of the
 #: 1e-8 result (measured) at half the simulations.
 TIME_DOMAIN_TOLERANCE = 1.0e-6
+#: Most threads simulating the Jacobian's columns at once.
+MAX_WORKERS = 4
 #: Chi-square difference within which two frequency-domain optima fit equally well.
 AMBIGUITY_CHI2 = 4.0
 #: Two optima further apart than this many standard uncertainties are different answers.
@@ -387,6 +391,12 @@ def noise_shapes(model: BalanceGreyboxModel, values: Dict[str, float],
     lin = linearise(loaded(model.balance(values).mechanics, setting.load_mass_kg,
                            setting.load_changer_coupled))
     a_d = sla.expm(lin.A / setting.sample_rate_Hz)
+    # C (z I - A_d)^-1 = (C V) diag(1 / (z - mu)) V^-1 with A_d = V diag(mu) V^-1: every line
+    # at once (the balance's modes are distinct, V well conditioned; otherwise a solve per line)
+    mu, v = np.linalg.eig(a_d)
+    modal = np.linalg.cond(v) < 1.0e8
+    if modal:
+        cv, v_inv = lin.C[0] @ v, np.linalg.inv(v)
     eye = np.eye(a_d.shape[0])
     shapes, bases = [], []
     for sec in data:
@@ -395,6 +405,9 @@ def noise_shapes(model: BalanceGreyboxModel, values: Dict[str, float],
         shapes.append([np.abs(lin.frequency_response(f, inp).response_m_per_N) ** 2
                        for inp in ('coil', 'pan')])
         z = np.exp(2j * np.pi * np.arange(f.size) / n)
+        if modal:
+            bases.append(((cv * z[:, None]) / (z[:, None] - mu[None, :])) @ v_inv)
+            continue
         # rows C (z I - A)^-1 z: solve (z I - A)^T v = C^T per line
         lhs = np.transpose(z[:, None, None] * eye[None] - a_d[None], (0, 2, 1))
         rhs = np.broadcast_to(lin.C[0].astype(complex), (f.size, eye.shape[0]))[..., None]
@@ -540,6 +553,86 @@ def time_domain_specs(start: Mapping[str, float], free: Sequence[str],
     return specs
 
 
+def expected_simulations(method: str, n_parameters: int) -> int:
+    """
+    Simulations of the whole record a time-domain fit typically needs (measured).
+
+    Parameters
+    ----------
+    method : str
+        The optimiser.
+    n_parameters : int
+        Free parameters.
+
+    Returns
+    -------
+    int
+        Gauss-Newton with the linearised Jacobian: the start, about three steps and the four
+        of its check, plus four around the fit; ``least_squares``: about three Jacobians and
+        the central one of the covariance; the pattern search: its usual budget.
+    """
+    if method == 'gauss_newton':
+        return 12
+    if method == 'least_squares':
+        return 4 * (n_parameters + 1) + 2 * n_parameters + 4
+    return 200 * n_parameters
+
+
+def interpreted_estimate_s(model: BalanceGreyboxModel, values: Dict[str, float],
+                           simulations: int, probe_samples: int = 2000) -> float:
+    """
+    Wall time of ``simulations`` full-record simulations, from timing a short one.
+
+    Parameters
+    ----------
+    model : BalanceGreyboxModel
+        The model (its record length and backend).
+    values : dict of str to float
+        Parameters to simulate with.
+    simulations : int
+        How many.
+    probe_samples : int
+        Samples simulated for the measurement.
+
+    Returns
+    -------
+    float
+        The estimate [s].
+    """
+    import time
+
+    n = model.setpoints_V.shape[0]
+    probe = np.array(model.setpoints_V[:min(probe_samples, n)])
+    start = time.perf_counter()
+    model.simulate_setpoints(values, probe)
+    per_sample = (time.perf_counter() - start) / probe.shape[0]
+    return float(per_sample * n * simulations)
+
+
+def simulation_workers(model: BalanceGreyboxModel) -> int:
+    """
+    Threads for the fit's Jacobian simulations.
+
+    Parameters
+    ----------
+    model : BalanceGreyboxModel
+        The model (its simulator backend).
+
+    Returns
+    -------
+    int
+        The processors this process may use, at most :data:`MAX_WORKERS`, with the compiled
+        kernel (it releases the GIL); 1 for the interpreted one.
+    """
+    if resolved_backend(model.backend) != 'numba':
+        return 1
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:          # not on Linux
+        cpus = os.cpu_count() or 1
+    return max(1, min(MAX_WORKERS, cpus))
+
+
 def _fail_closed(fit: Callable[..., Tuple[Optional[BalanceGreyboxResult], Verdict]]
                  ) -> Callable[..., Tuple[Optional[BalanceGreyboxResult], Verdict]]:
     """Turn an error raised by the numbers (data the model cannot follow) into a failure."""
@@ -636,12 +729,23 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
     model = BalanceGreyboxModel(balance, setting.sample_rate_Hz, setpoints,
                                 setting.load_mass_kg, setting.load_changer_coupled)
     data = model.sections(channels['position_m'], sections)
+    if resolved_backend(model.backend) != 'numba':
+        # the interpreted simulator: say up front how long this takes
+        count = expected_simulations(gcfg.method, len(free) + int(fit_offset))
+        estimate = interpreted_estimate_s(model, {n: start[n] for n in free}, count)
+        message = (f'the simulator runs interpreted (numba is not installed): the time-domain '
+                   f'fit takes about {estimate / 60.0:.0f} min ({estimate:.0f} s, {count} '
+                   f'simulations of {n_end} samples); with numba about a second (pip install '
+                   f'numba)')
+        report('greybox', 0.1, message)
+        if estimate > 60.0:
+            verdict.warnings.append(f'greybox: {message}')
     rest = None
     if fit_offset:
         rest = offset_start(model, {n: start[n] for n in free}, channels['position_m'], data)
     specs = time_domain_specs(start, free, gcfg.relative_bounds, rest)
-    budget = gcfg.max_evaluations or (100 * (len(specs) + 1) if gcfg.method == 'least_squares'
-                                      else 2000 * len(specs))
+    budget = gcfg.max_evaluations or (2000 * len(specs) if gcfg.method == 'pattern_search'
+                                      else 100 * (len(specs) + 1))
 
     def simulate(values: Dict[str, float], inputs: np.ndarray) -> np.ndarray:
         before = model.n_simulations
@@ -664,7 +768,9 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
     try:
         fit = fit_greybox(simulate, data, specs, method=gcfg.method, options=options,
                           max_nfev=max_nfev, noise_weights=weights, transients=transients,
-                          tolerance=TIME_DOMAIN_TOLERANCE)
+                          tolerance=TIME_DOMAIN_TOLERANCE, workers=simulation_workers(model),
+                          output_derivatives=model.output_derivatives,
+                          residual_tests=not gcfg.noise_weighting)
     except (IdentificationError, ValueError, RuntimeError) as exc:
         verdict.failures.append(f'greybox: {exc}')
         return None, verdict

@@ -14,19 +14,26 @@ setpoints, and each section's simulate call returns its slice: the sections then
 state the previous sections left, as in the experiment. Sections are recognised because their
 input arrays are views into the recorded setpoints (as :meth:`BalanceGreyboxModel.sections`
 builds them); any other input array is simulated on its own, from rest.
+
+:meth:`BalanceGreyboxModel.output_derivatives` gives the fit its Jacobian from the linearised
+model (:mod:`~emfc_ros.core.ident.linear_sensitivity`), which the fit checks against the
+simulation (issue 14).
 """
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import fields, replace
+import threading
 from typing import Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
 from emfc_ros.core.ident.greybox import DataSection
-from emfc_ros.core.model.operating_point import rest_position
+from emfc_ros.core.ident.linear_sensitivity import LinearSensitivity
+from emfc_ros.core.model.operating_point import equilibrium, rest_position
 from emfc_ros.core.model.parameters import BalanceParameters, MechanicalParameters
-from emfc_ros.core.sim import Simulator
+from emfc_ros.core.sim import min_substeps, Simulator
 
 #: Default free parameters (fields of MechanicalParameters): stiffnesses, dampings, the
 #: lever and coil-carrier inertias and the coil mass (together they set the three entries of
@@ -56,6 +63,8 @@ _UNITS = (('_Nms_per_rad', 'N m s/rad'), ('_Nm_per_rad', 'N m/rad'), ('_m_per_s2
 
 #: Row of the position channel in the simulator output.
 _POSITION = 'position_m'
+#: Full-record simulations kept (one per thread evaluating residuals, and the last point).
+_CACHED_RECORDS = 4
 
 
 def mechanical_names() -> Tuple[str, ...]:
@@ -133,7 +142,7 @@ def offset_force_N(params: BalanceParameters, setpoints_V: Sequence[float],
     Parameters
     ----------
     params : BalanceParameters
-        The balance (its ``F_off_N`` is the first guess).
+        The balance (its ``F_off_N`` is ignored).
     setpoints_V : sequence of float
         Coil and load-changer setpoints [V].
     load_mass_kg : float
@@ -146,31 +155,25 @@ def offset_force_N(params: BalanceParameters, setpoints_V: Sequence[float],
     Returns
     -------
     float
-        ``F_off_N`` [N] (three secant steps on the static equilibrium, which is nearly linear
-        in the offset force).
+        ``F_off_N`` [N]: the lever-end force that holds the beams at that position
+        (:func:`~emfc_ros.core.model.operating_point.equilibrium`, one Newton solve) less the
+        coil force there.
     """
-    def y_at(force: float) -> float:
-        x = rest_state(params.with_mechanics(F_off_N=force), setpoints_V, load_mass_kg,
-                       load_changer_coupled)
-        m = params.mechanics
-        return float(m.l2_m * np.sin(x[0]) + m.l3_m * np.sin(x[1]))
+    return _offset_and_rest(params, setpoints_V, load_mass_kg, load_changer_coupled,
+                            rest_position_m)[0]
 
-    f0 = float(params.mechanics.F_off_N)
-    step = 1.0e-4
-    y0, y1 = y_at(f0), y_at(f0 + step)
-    for _ in range(3):
-        slope = (y1 - y0) / step
-        if slope == 0.0 or not np.isfinite(slope):
-            break
-        f_new = f0 + (rest_position_m - y0) / slope
-        step = f_new - f0
-        if abs(step) < 1e-15:
-            return float(f_new)
-        f0, y0 = f_new, y_at(f_new)
-        y1 = y_at(f0 + step) if abs(y0 - rest_position_m) > 1e-15 else y0
-        if y1 == y0:
-            break
-    return float(f0)
+
+def _offset_and_rest(params: BalanceParameters, setpoints_V: Sequence[float],
+                     load_mass_kg: float, load_changer_coupled: bool, rest_position_m: float
+                     ) -> Tuple[float, np.ndarray]:
+    """``F_off_N`` for a rest position (see :func:`offset_force_N`) and that rest state."""
+    i_coil = float(params.coil_amplifier.current_A(float(setpoints_V[0])))
+    i_lc = float(params.load_changer_amplifier.current_A(float(setpoints_V[1])))
+    f_pan = float(params.load_changer.force_N(i_lc))
+    y = float(rest_position_m)
+    op = equilibrium(params.mechanics, load_mass_kg, load_changer_coupled, F_off_N=0.0,
+                     F_p_N=f_pan, y_m=y)
+    return float(op.F_c_N - params.motor.force_N(i_coil, y)), op.x
 
 
 def mass_matrix_entries(mech: MechanicalParameters, load_mass_kg: float,
@@ -281,6 +284,8 @@ class BalanceGreyboxModel:
         Whether the load changer's moving mass rode on the pan.
     hold : {'zoh', 'foh'}
         Hold of the setpoints in the simulation (as the DAC of the experiment).
+    backend : {'auto', 'numba', 'numpy'}
+        The simulator's kernel (:class:`~emfc_ros.core.sim.Simulator`).
 
     Attributes
     ----------
@@ -290,7 +295,7 @@ class BalanceGreyboxModel:
 
     def __init__(self, params: BalanceParameters, sample_rate_Hz: float,
                  setpoints_V: np.ndarray, load_mass_kg: float,
-                 load_changer_coupled: bool, hold: str = 'zoh') -> None:
+                 load_changer_coupled: bool, hold: str = 'zoh', backend: str = 'auto') -> None:
         u = np.ascontiguousarray(setpoints_V, dtype=float)
         if u.ndim != 2 or u.shape[1] != 2 or u.shape[0] < 2:
             raise ValueError(f'setpoints_V must have shape (n >= 2, 2), got {u.shape}')
@@ -300,9 +305,17 @@ class BalanceGreyboxModel:
         self.load_mass_kg = float(load_mass_kg)
         self.load_changer_coupled = bool(load_changer_coupled)
         self.hold = hold
+        self.backend = backend
         self.n_simulations = 0
-        self._cache_key: Optional[tuple] = None
-        self._cache: Optional[np.ndarray] = None
+        self._u_rows = np.ascontiguousarray(u.T)
+        # the last few full-record simulations by parameter set: the fit evaluates the
+        # Jacobian's columns in threads (the kernel releases the GIL), each asking for its
+        # sections in turn
+        self._cache: 'OrderedDict[tuple, np.ndarray]' = OrderedDict()
+        self._lock = threading.Lock()
+        self._sensitivity: Optional[LinearSensitivity] = None
+        self._derivatives: Optional[np.ndarray] = None
+        self._derivatives_key: Optional[tuple] = None
 
     def balance(self, values: Mapping[str, float]) -> BalanceParameters:
         """
@@ -319,12 +332,33 @@ class BalanceGreyboxModel:
             The modified copy; a ``rest_position_m`` entry is turned into the ``F_off_N`` that
             gives that rest position under the first recorded setpoints.
         """
+        return self.start(values)[0]
+
+    def start(self, values: Mapping[str, float]) -> Tuple[BalanceParameters, np.ndarray]:
+        """
+        The balance for some parameters and its state of rest under the first setpoints.
+
+        Parameters
+        ----------
+        values : mapping of str to float
+            As for :meth:`balance`.
+
+        Returns
+        -------
+        params : BalanceParameters
+            :meth:`balance`'s result.
+        x0 : ndarray, shape (4,)
+            :func:`rest_state` of it under the first recorded setpoints (from the same
+            equilibrium solve when ``values`` give the rest position).
+        """
         params = with_values(self.params, values, self.load_mass_kg, self.load_changer_coupled)
         if REST_POSITION in values:
-            force = offset_force_N(params, self.setpoints_V[0], self.load_mass_kg,
-                                   self.load_changer_coupled, float(values[REST_POSITION]))
-            params = params.with_mechanics(F_off_N=force)
-        return params
+            force, x0 = _offset_and_rest(params, self.setpoints_V[0], self.load_mass_kg,
+                                         self.load_changer_coupled,
+                                         float(values[REST_POSITION]))
+            return params.with_mechanics(F_off_N=force), x0
+        return params, rest_state(params, self.setpoints_V[0], self.load_mass_kg,
+                                  self.load_changer_coupled)
 
     def simulate_setpoints(self, values: Mapping[str, float], setpoints_V: np.ndarray,
                            ) -> np.ndarray:
@@ -343,20 +377,24 @@ class BalanceGreyboxModel:
         ndarray, shape (n,)
             Lever-end position [m] as the sensor reports it (range clipping, no noise).
         """
-        params = self.balance(values)
         u = np.asarray(setpoints_V, dtype=float)
-        x0 = rest_state(params, u[0], self.load_mass_kg, self.load_changer_coupled)
+        if u is self.setpoints_V:
+            params, x0 = self.start(values)
+        else:
+            params = self.balance(values)
+            x0 = rest_state(params, u[0], self.load_mass_kg, self.load_changer_coupled)
         sim = Simulator(params, self.sample_rate_Hz, 0, hold=self.hold, noise=False,
                         quantisation=False, reference_channels=False,
                         load_mass_kg=self.load_mass_kg,
                         load_changer_coupled=self.load_changer_coupled, x0=x0,
-                        initial_setpoints_V=u[0])
-        out = sim.step_block(np.ascontiguousarray(u.T))
+                        initial_setpoints_V=u[0], backend=self.backend)
+        rows = self._u_rows if u is self.setpoints_V else np.ascontiguousarray(u.T)
+        out = sim.step_block(rows)
         return out[sim.channel_names.index(_POSITION)]
 
     def simulate_record(self, values: Mapping[str, float]) -> np.ndarray:
         """
-        Simulate the whole record (cached for the last parameter set).
+        Simulate the whole record (the last few parameter sets are cached; thread-safe).
 
         Parameters
         ----------
@@ -369,11 +407,18 @@ class BalanceGreyboxModel:
             Position [m].
         """
         key = tuple(sorted((k, float(v)) for k, v in values.items()))
-        if key != self._cache_key:
-            self._cache = self.simulate_setpoints(values, self.setpoints_V)
-            self._cache_key = key
+        with self._lock:
+            hit = self._cache.get(key)
+            if hit is not None:
+                self._cache.move_to_end(key)
+                return hit
+        out = self.simulate_setpoints(values, self.setpoints_V)
+        with self._lock:
+            self._cache[key] = out
+            while len(self._cache) > _CACHED_RECORDS:
+                self._cache.popitem(last=False)
             self.n_simulations += 1
-        return self._cache
+        return out
 
     def offset(self, inputs: np.ndarray) -> Optional[int]:
         """
@@ -422,6 +467,51 @@ class BalanceGreyboxModel:
         if first is None:
             return self.simulate_setpoints(values, inputs)
         return self.simulate_record(values)[first:first + inputs.shape[0]]
+
+    def output_derivatives(self, values: Mapping[str, float], names: Sequence[str],
+                           inputs: np.ndarray) -> Optional[np.ndarray]:
+        """
+        Derivatives of a section's simulated position, from the linearised model.
+
+        The ``output_derivatives`` of :func:`~emfc_ros.core.ident.greybox.fit_greybox`
+        (:mod:`~emfc_ros.core.ident.linear_sensitivity`): the fit takes its Jacobian from them
+        and checks them against the simulation.
+
+        Parameters
+        ----------
+        values : mapping of str to float
+            All parameters of the fit (mechanical, mass-matrix entries, rest position).
+        names : sequence of str
+            The free ones, in the Jacobian's column order.
+        inputs : ndarray, shape (n, 2)
+            Setpoints of a section: a view into the recording.
+
+        Returns
+        -------
+        ndarray, shape (n, len(names)) or None
+            ``d position / d parameter`` [m per unit]; None for inputs that are not a view
+            into the recording or a first-order hold (the fit then differentiates the
+            simulation).
+        """
+        first = self.offset(inputs)
+        if first is None or self.hold != 'zoh':
+            return None
+        key = (tuple(sorted((k, float(v)) for k, v in values.items())), tuple(names))
+        with self._lock:
+            cached = self._derivatives if self._derivatives_key == key else None
+        if cached is None:
+            params, x0 = self.start(values)
+            if self._sensitivity is None:
+                self._sensitivity = LinearSensitivity(
+                    self.setpoints_V, self.sample_rate_Hz, self.load_mass_kg,
+                    self.load_changer_coupled, min_substeps(params, self.sample_rate_Hz))
+            cached = self._sensitivity.derivatives(
+                params, x0, names, values,
+                lambda v: with_values(self.params, v, self.load_mass_kg,
+                                      self.load_changer_coupled), REST_POSITION)
+            with self._lock:
+                self._derivatives, self._derivatives_key = cached, key
+        return cached[first:first + inputs.shape[0]]
 
     def sections(self, position_m: np.ndarray, spans: Sequence[Tuple[str, int, int]],
                  weights: Optional[Mapping[str, float]] = None) -> List[DataSection]:

@@ -322,6 +322,8 @@ def greybox_dict(g: Optional[BalanceGreyboxResult]) -> Optional[dict]:
         'cost': fit.cost, 'optimizer_evaluations': fit.optimizer_evaluations,
         'n_evaluations': fit.n_evaluations, 'time_s': fit.time_s,
         'covariance_method': fit.covariance_method,
+        'jacobian_method': fit.jacobian_method,
+        'derivative_check': fit.derivative_check,
         'parameters': params,
         'derived': {k: {'value': v.value, 'standard_uncertainty': v.standard_uncertainty,
                         'unit': v.unit} for k, v in g.derived.items()},

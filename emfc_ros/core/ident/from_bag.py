@@ -207,7 +207,9 @@ def plant_settings(bag_path: Path) -> Dict[str, Any]:
 
 def identify_bag(bag_path: Path, options: Optional[Mapping[str, Any]] = None,
                  namespace: Optional[str] = None, progress: Optional[Progress] = None,
-                 streams: Optional[Mapping[str, Any]] = None) -> Tuple[Any, Dict[str, Any]]:
+                 streams: Optional[Mapping[str, Any]] = None,
+                 on_step: Optional[Callable[[str, Any], None]] = None
+                 ) -> Tuple[Any, Dict[str, Any]]:
     """
     Read a bag back and identify the balance from it.
 
@@ -224,6 +226,8 @@ def identify_bag(bag_path: Path, options: Optional[Mapping[str, Any]] = None,
         ``progress(step, fraction, message)``.
     streams : Mapping, optional
         The bag's streams if the caller has read them already (:func:`read_streams`).
+    on_step : callable, optional
+        Passed to :func:`~emfc_ros.core.ident.pipeline.identify`.
 
     Returns
     -------
@@ -269,7 +273,8 @@ def identify_bag(bag_path: Path, options: Optional[Mapping[str, Any]] = None,
     report('read bag', 1.0, f'{n} samples of {ns}/measurements'
            + (f' from device sample {offset}' if offset else ''))
     result = pipeline.identify(recording, sections, options,
-                               sample_rate_Hz=measurements.sample_rate_Hz, progress=progress)
+                               sample_rate_Hz=measurements.sample_rate_Hz, progress=progress,
+                               on_step=on_step)
     info = {'namespace': ns, 'samples': n,
             'sample_rate_Hz': measurements.sample_rate_Hz, 'sections': sections,
             'excitation_offset_samples': offset,

@@ -266,7 +266,9 @@ class IdentificationResult:
 
 def identify(recording: Any, experiment_sections: Sequence[Any],
              config: Optional[Any] = None, *, sample_rate_Hz: Optional[float] = None,
-             progress: Optional[Progress] = None) -> IdentificationResult:
+             progress: Optional[Progress] = None,
+             on_step: Optional[Callable[[str, 'IdentificationResult'], None]] = None
+             ) -> IdentificationResult:
     """
     Identify the balance from a recorded experiment.
 
@@ -288,6 +290,10 @@ def identify(recording: Any, experiment_sections: Sequence[Any],
         Sample rate [Hz] when the recording does not carry it.
     progress : callable, optional
         Called as ``progress(step, fraction, message)`` with ``fraction`` in [0, 1].
+    on_step : callable, optional
+        Called as ``on_step(step, result)`` after each step (``'frf'``, ``'tf_fit'``,
+        ``'static'``, ``'greybox'``) with the result so far, e.g. to draw its plots while the
+        next step runs (:class:`~emfc_ros.core.report.background.PlotPool`).
 
     Returns
     -------
@@ -325,24 +331,29 @@ def identify(recording: Any, experiment_sections: Sequence[Any],
     by_name = {s.name: s for s in spans}
     forces = _forces(channels, cfg)
 
+    done = on_step if on_step is not None else (lambda step, partial: None)
     if cfg.frf.enabled:
         start = time.perf_counter()
         report('frf', 0.0, 'frequency responses')
         _frf_step(result, channels, forces, by_name, report)
         result.timings_s['frf'] = time.perf_counter() - start
         report('frf', 1.0, f'{len(result.frfs)} frequency responses')
+        done('frf', result)
     if cfg.tf_fit.enabled and result.frfs:
         start = time.perf_counter()
         _tf_step(result, report)
         result.timings_s['tf_fit'] = time.perf_counter() - start
+        done('tf_fit', result)
     if cfg.static.enabled:
         start = time.perf_counter()
         _static_step(result, channels, forces, spans)
         result.timings_s['static'] = time.perf_counter() - start
+        done('static', result)
     if cfg.greybox.enabled:
         start = time.perf_counter()
         _greybox_step(result, channels, spans, report)
         result.timings_s['greybox'] = time.perf_counter() - start
+        done('greybox', result)
     report('done', 1.0, f'identification finished with {len(result.warnings)} warning(s)')
     return result
 

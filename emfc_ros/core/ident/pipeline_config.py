@@ -20,7 +20,7 @@ from emfc_ros.core.pan_load import MAX_LOAD_MASS_KG
 
 FRF_METHODS = ('lpm', 'welch')
 HOLDS = ('zoh', 'foh', 'none')
-GREYBOX_METHODS = ('least_squares', 'pattern_search')
+GREYBOX_METHODS = ('gauss_newton', 'least_squares', 'pattern_search')
 CRITERIA = ('bic', 'aic')
 
 
@@ -129,8 +129,10 @@ class GreyboxConfig:
     ----------
     enabled : bool
         Run the step.
-    method : {'least_squares', 'pattern_search'}
-        Optimiser.
+    method : {'gauss_newton', 'least_squares', 'pattern_search'}
+        Optimiser (:func:`~emfc_ros.core.ident.greybox.fit_greybox`): Gauss-Newton from the
+        frequency-domain start (default), scipy's trust-region least squares, or the pattern
+        search.
     free : tuple of str
         Free mechanical parameters (names of ``MechanicalParameters``).
     sections : tuple of str
@@ -162,7 +164,7 @@ class GreyboxConfig:
     """
 
     enabled: bool = True
-    method: str = 'least_squares'
+    method: str = 'gauss_newton'
     free: Tuple[str, ...] = DEFAULT_FREE
     sections: Tuple[str, ...] = ()
     relative_bounds: Tuple[float, float] = (0.2, 5.0)

@@ -5,6 +5,13 @@ Bode diagrams, coherence, measured and simulated time series, residual analysis 
 ``resid``), static characteristics with residuals and the pole-zero map.
 
 Matplotlib is imported lazily; :func:`matplotlib_available` tells whether it can be used.
+
+Drawing cost (issue 14): each figure is a bare ``matplotlib.figure.Figure`` on the Agg canvas
+(no pyplot figure manager) with fixed margins (``tight_layout`` measured and re-measured every
+tick label: a third of the time), logarithmic axes labelled with plain numbers (no mathtext),
+PNGs written with zlib level 1, and time series reduced to their minimum and maximum per pixel
+column (:func:`envelope`), which draws the same picture from about 2 000 points instead of
+100 000. :mod:`~emfc_ros.core.report.background` draws them in worker processes.
 """
 
 from __future__ import annotations
@@ -21,6 +28,10 @@ from emfc_ros.core.ident.metrics import (CorrelationTest, input_correlation_test
 
 #: Confidence level of the FRF bands.
 CONFIDENCE = 0.95
+#: Resolution of the PNGs [dots per inch].
+DPI = 110
+#: zlib level of the PNGs (1: fastest; the default 6 took longer than drawing a figure).
+PNG_COMPRESSION = 1
 
 
 def matplotlib_available() -> bool:
@@ -44,6 +55,93 @@ def _pyplot() -> Any:
     matplotlib.use('Agg', force=True)
     import matplotlib.pyplot as plt
     return plt
+
+
+def _figure(**kwargs: Any) -> Any:
+    """A figure on the Agg canvas, outside pyplot's figure manager."""
+    _pyplot()
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    fig = Figure(**kwargs)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig: Any, path: Union[str, Path], **margins: float) -> Path:
+    """Fixed margins (fractions of the figure), then the PNG."""
+    fig.subplots_adjust(**margins)
+    path = Path(path)
+    fig.savefig(path, dpi=DPI, pil_kwargs={'compress_level': PNG_COMPRESSION})
+    return path
+
+
+def _plain_log(axis: Any) -> None:
+    """Label a logarithmic axis with plain numbers (10, 100, 1000), minor ticks unlabelled."""
+    from matplotlib.ticker import FuncFormatter, NullFormatter
+    axis.set_major_formatter(FuncFormatter(lambda value, _: f'{value:g}'))
+    axis.set_minor_formatter(NullFormatter())
+
+
+def _log_frequency_grid(axes: Any, frequency_Hz: np.ndarray) -> None:
+    """
+    Decade ticks with plain labels and the 2..9 lines as one collection per axes.
+
+    Matplotlib's minor ticks on a logarithmic axis are a tick object each (line, label,
+    grid line): they took half of a Bode plot's drawing time.
+    """
+    from matplotlib.ticker import NullLocator
+    f = np.asarray(frequency_Hz, dtype=float)
+    f = f[np.isfinite(f) & (f > 0.0)]
+    for ax in axes:
+        ax.xaxis.set_minor_locator(NullLocator())
+        _plain_log(ax.xaxis)
+        ax.grid(True, which='major', alpha=0.3)
+    if f.size == 0:
+        return
+    decades = np.arange(np.floor(np.log10(f.min())), np.ceil(np.log10(f.max())) + 1)
+    lines = (np.arange(2.0, 10.0)[None, :] * 10.0 ** decades[:, None]).ravel()
+    lines = lines[(lines > f.min()) & (lines < f.max())]
+    for ax in axes:
+        ax.vlines(lines, 0.0, 1.0, transform=ax.get_xaxis_transform(), colors='0.5',
+                  linewidths=0.5, alpha=0.25, zorder=0.5)
+
+
+def envelope(x: np.ndarray, y: np.ndarray, columns: int) -> tuple:
+    """
+    Reduce a long trace to its minimum and maximum per column, in order.
+
+    A line through the points of each column's extremes covers the same pixels as the line
+    through every point when a column holds many samples (what the eye sees of a trace denser
+    than the screen).
+
+    Parameters
+    ----------
+    x, y : ndarray, shape (n,)
+        The trace (``x`` increasing).
+    columns : int
+        Columns to reduce to (the plot's width in pixels).
+
+    Returns
+    -------
+    (ndarray, ndarray)
+        At most ``2 columns + 2`` points, the first and last sample among them; the input
+        when it is not longer than that.
+    """
+    x = np.asarray(x)
+    y = np.asarray(y)
+    n = y.size
+    if columns < 1 or n <= 2 * columns + 2:
+        return x, y
+    k = -(-n // columns)
+    full = (n // k) * k
+    blocks = y[:full].reshape(-1, k)
+    base = np.arange(blocks.shape[0]) * k
+    keep = [base + blocks.argmin(axis=1), base + blocks.argmax(axis=1)]
+    if full < n:
+        tail = y[full:]
+        keep.append(np.array([full + int(tail.argmin()), full + int(tail.argmax())]))
+    idx = np.unique(np.concatenate(keep + [np.array([0, n - 1])]))
+    return x[idx], y[idx]
 
 
 def _wrap_deg(rad: np.ndarray) -> np.ndarray:
@@ -72,12 +170,12 @@ def plot_bode(frf: Any, path: Union[str, Path], title: Optional[str] = None) -> 
     Path
         The file written.
     """
-    plt = _pyplot()
     frd = frf.frd
     f = frd.frequency_Hz
     mag = np.abs(frd.response)
     ok = np.isfinite(frd.response)
-    fig, (ax_m, ax_p) = plt.subplots(2, 1, sharex=True, figsize=(8.0, 6.5))
+    fig = _figure(figsize=(8.0, 6.5))
+    ax_m, ax_p = fig.subplots(2, 1, sharex=True)
     with np.errstate(divide='ignore', invalid='ignore'):
         lo, hi, ph_lo, ph_hi = frd.confidence_bounds(CONFIDENCE)
         lo = np.where(lo > 0.0, lo, np.nan)
@@ -106,16 +204,13 @@ def plot_bode(frf: Any, path: Union[str, Path], title: Optional[str] = None) -> 
     ax_p.set_xlabel('frequency [Hz]')
     ax_p.set_ylim(-370.0, 10.0)
     ax_p.set_yticks(np.arange(-360.0, 1.0, 90.0))
-    ax_m.grid(True, which='both', alpha=0.3)
-    ax_p.grid(True, which='both', alpha=0.3)
+    ax_m.grid(True, axis='y', alpha=0.3)
+    ax_p.grid(True, axis='y', alpha=0.3)
+    _log_frequency_grid((ax_m, ax_p), f)
     ax_m.legend(loc='lower left', fontsize=8)
     kind = 'pan force' if frf.input == 'pan' else 'coil force'
     ax_m.set_title(title or f'{frf.section}: position per {kind}')
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path, left=0.11, right=0.97, top=0.95, bottom=0.08, hspace=0.08)
 
 
 def plot_time_series(greybox: Any, section: str, path: Union[str, Path],
@@ -132,28 +227,29 @@ def plot_time_series(greybox: Any, section: str, path: Union[str, Path],
     path : str or Path
         PNG file to write.
     max_points : int
-        Longer records are decimated (every k-th sample) for drawing.
+        Most points drawn per trace: a longer trace is drawn as its minimum and maximum per
+        column (:func:`envelope`, at most one column per pixel of the figure).
 
     Returns
     -------
     Path
         The file written.
     """
-    plt = _pyplot()
     t = greybox.time_s[section]
     y = greybox.measured_m[section]
     yh = greybox.simulated_m[section]
-    step = max(1, t.size // max_points)
     fit = next((s for s in greybox.fit.sections if s.name == section), None)
-    fig, (ax, ax_e) = plt.subplots(2, 1, sharex=True, figsize=(9.0, 5.5),
-                                   gridspec_kw={'height_ratios': [3, 1]})
+    width = (9.0, 5.5)
+    columns = max(1, min(int(width[0] * DPI), max_points // 2))
+    fig = _figure(figsize=width)
+    ax, ax_e = fig.subplots(2, 1, sharex=True, gridspec_kw={'height_ratios': [3, 1]})
     # measured drawn wide and light underneath, simulated thin and dashed on top: both
     # stay visible where they coincide
-    ax.plot(t[::step], 1e6 * y[::step], lw=2.4, color='C0', alpha=0.45, zorder=2,
+    ax.plot(*envelope(t, 1e6 * y, columns), lw=2.4, color='C0', alpha=0.45, zorder=2,
             solid_capstyle='butt', label='measured')
-    ax.plot(t[::step], 1e6 * yh[::step], lw=0.8, color='k', ls=(0, (4, 2)), zorder=3,
+    ax.plot(*envelope(t, 1e6 * yh, columns), lw=0.8, color='k', ls=(0, (4, 2)), zorder=3,
             label='simulated (grey-box)')
-    ax_e.plot(t[::step], 1e9 * (y - yh)[::step], lw=0.5, color='C3',
+    ax_e.plot(*envelope(t, 1e9 * (y - yh), columns), lw=0.5, color='C3',
               label='measured - simulated')
     ax_e.legend(loc='upper right', fontsize=8)
     ax.set_ylabel('position [um]')
@@ -164,11 +260,7 @@ def plot_time_series(greybox: Any, section: str, path: Union[str, Path],
     ax.legend(loc='upper right', fontsize=8)
     ax.grid(True, alpha=0.3)
     ax_e.grid(True, alpha=0.3)
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path, left=0.09, right=0.98, top=0.94, bottom=0.1, hspace=0.1)
 
 
 def plot_coherence(frf: Any, path: Union[str, Path]) -> Path:
@@ -187,12 +279,12 @@ def plot_coherence(frf: Any, path: Union[str, Path]) -> Path:
     Path
         The file written.
     """
-    plt = _pyplot()
     frd = frf.frd
     f = np.asarray(frd.frequency_Hz, dtype=float)
     coh = np.asarray(frd.coherence, dtype=float)
     ok = np.isfinite(coh)
-    fig, ax = plt.subplots(figsize=(8.0, 3.5))
+    fig = _figure(figsize=(8.0, 3.5))
+    ax = fig.subplots()
     kind = 'multiple' if frf.two_input else 'ordinary'
     ax.semilogx(f[ok], coh[ok], '.-', ms=2, lw=0.5, color='C0',
                 label=f'{kind} coherence ({frd.estimator})')
@@ -203,13 +295,11 @@ def plot_coherence(frf: Any, path: Union[str, Path]) -> Path:
     ax.set_xlabel('frequency [Hz]')
     ax.set_ylabel('coherence [1]')
     ax.set_title(f'{frf.name}: coherence of position and force')
-    ax.grid(True, which='both', alpha=0.3)
+    ax.grid(True, axis='y', alpha=0.3)
+    if np.any(ok):
+        _log_frequency_grid((ax,), f[ok])
     ax.legend(loc='lower left', fontsize=8)
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path, left=0.09, right=0.97, top=0.9, bottom=0.15)
 
 
 @dataclass(frozen=True)
@@ -302,12 +392,12 @@ def plot_residuals(analysis: ResidualAnalysis, path: Union[str, Path]) -> Path:
     Path
         The file written.
     """
-    plt = _pyplot()
     panels = [('residual autocorrelation, lags from 1', analysis.autocorrelation)]
     panels += [(f'residual x {name}', test) for name, test in
                analysis.cross_correlations.items()]
-    fig, axes = plt.subplots(len(panels), 1, figsize=(8.0, 2.6 * len(panels) + 0.6),
-                             squeeze=False)
+    height = 2.6 * len(panels) + 0.6
+    fig = _figure(figsize=(8.0, height))
+    axes = fig.subplots(len(panels), 1, squeeze=False)
     pct = f'{100 * analysis.confidence:.0f} %'
     for ax, (label, test) in zip(axes[:, 0], panels):
         lags = np.asarray(test.lags)
@@ -323,11 +413,8 @@ def plot_residuals(analysis: ResidualAnalysis, path: Union[str, Path]) -> Path:
     axes[-1, 0].set_xlabel(f'lag [samples of {1e3 * analysis.sample_period_s:.4g} ms]')
     axes[0, 0].set_title(f'{analysis.section}: residual analysis (measured - simulated '
                          f'position)')
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path, left=0.11, right=0.97, top=1.0 - 0.35 / height,
+                 bottom=0.5 / height, hspace=0.3)
 
 
 STATIC_TITLES = {'coil_amplifier': 'coil amplifier I(U)',
@@ -356,12 +443,11 @@ def plot_static_fit(key: str, fit: Any, x: np.ndarray, y: np.ndarray,
     Path
         The file written.
     """
-    plt = _pyplot()
     x = np.asarray(x, dtype=float)
     y = np.asarray(y, dtype=float)
     grid = np.linspace(float(x.min()), float(x.max()), 400)
-    fig, (ax, ax_r) = plt.subplots(2, 1, sharex=True, figsize=(8.0, 5.5),
-                                   gridspec_kw={'height_ratios': [3, 1.3]})
+    fig = _figure(figsize=(8.0, 5.5))
+    ax, ax_r = fig.subplots(2, 1, sharex=True, gridspec_kw={'height_ratios': [3, 1.3]})
     ax.plot(x, y, 'o', ms=4, color='C0', label=f'plateau means ({x.size})')
     ax.plot(grid, fit(grid), '-', color='C1', lw=1.0,
             label=f'{fit.formula()} (R^2 {fit.r_squared:.6f})')
@@ -377,11 +463,7 @@ def plot_static_fit(key: str, fit: Any, x: np.ndarray, y: np.ndarray,
     for a in (ax, ax_r):
         a.grid(True, alpha=0.3)
         a.legend(loc='best', fontsize=8)
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path, left=0.12, right=0.97, top=0.94, bottom=0.1, hspace=0.08)
 
 
 def plot_pole_zero(result: Any, path: Union[str, Path]) -> Optional[Path]:
@@ -422,8 +504,8 @@ def plot_pole_zero(result: Any, path: Union[str, Path]) -> Optional[Path]:
                            [z.s_rad_per_s for z in lin.zeros(name)], '+', 's'))
     if not models:
         return None
-    plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(8.0, 6.5))
+    fig = _figure(figsize=(8.0, 6.5))
+    ax = fig.subplots()
     every = []
     for k, (label, poles, zeros, pmark, zmark) in enumerate(models):
         p = np.asarray(poles, dtype=complex) / (2 * np.pi)
@@ -442,6 +524,8 @@ def plot_pole_zero(result: Any, path: Union[str, Path]) -> Optional[Path]:
     thresh = float(10 ** np.floor(np.log10(vals.min()))) if vals.size else 1.0
     ax.set_xscale('symlog', linthresh=thresh)
     ax.set_yscale('symlog', linthresh=thresh)
+    _plain_log(ax.xaxis)
+    _plain_log(ax.yaxis)
     ax.axhline(0.0, color='k', lw=0.5)
     ax.axvline(0.0, color='k', lw=0.5)
     ax.set_xlabel('real part / 2 pi [Hz]')
@@ -449,8 +533,4 @@ def plot_pole_zero(result: Any, path: Union[str, Path]) -> Optional[Path]:
     ax.set_title('pole-zero map (continuous time, s / 2 pi)')
     ax.grid(True, which='both', alpha=0.3)
     ax.legend(loc='best', fontsize=7)
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path, left=0.11, right=0.97, top=0.94, bottom=0.08)

@@ -7,24 +7,25 @@ The folder is what a person opens after an identification run (design brief sect
 from __future__ import annotations
 
 from pathlib import Path
-import re
-from typing import Any, Dict, List, Union
+from typing import Any, Dict, List, Optional, Union
 
 import yaml
 
+from emfc_ros.core.report.background import draw, PlotPool, report_jobs
 from emfc_ros.core.report.exports import write_exports
-from emfc_ros.core.report.plots import (matplotlib_available, plot_bode, plot_coherence,
-                                        plot_pole_zero, plot_residuals, plot_static_fit,
-                                        plot_time_series, residual_analysis)
+from emfc_ros.core.report.plots import matplotlib_available
 from emfc_ros.core.report.summary import summary_markdown
 
+#: Order in which the pool gets the figures: the slowest to draw first (measured: the residual
+#: analysis with its three panels, the time series, the Bode plots), so that the last figure
+#: done is a quick one.
+SUBMIT_ORDER = {'resid': 0, 'time': 1, 'bode': 2, 'pole_zero': 3, 'static': 4, 'coherence': 5}
+#: libyaml's emitter when PyYAML has it (same output, several times faster).
+_DUMPER = getattr(yaml, 'CSafeDumper', yaml.SafeDumper)
 
-def _file_name(text: str) -> str:
-    return re.sub(r'[^A-Za-z0-9_.-]+', '_', text)
 
-
-def write_report(result: Any, out_dir: Union[str, Path], plots: bool = True
-                 ) -> Dict[str, List[Path]]:
+def write_report(result: Any, out_dir: Union[str, Path], plots: bool = True,
+                 pool: Optional[PlotPool] = None) -> Dict[str, List[Path]]:
     """
     Write the results, exports, plots and summary of an identification into a folder.
 
@@ -48,6 +49,9 @@ def write_report(result: Any, out_dir: Union[str, Path], plots: bool = True
         Folder (created if needed).
     plots : bool
         Draw the plots.
+    pool : PlotPool, optional
+        Draw them in these worker processes while this one writes the other files
+        (:mod:`~emfc_ros.core.report.background`); default in this process.
 
     Returns
     -------
@@ -59,17 +63,24 @@ def write_report(result: Any, out_dir: Union[str, Path], plots: bool = True
     out.mkdir(parents=True, exist_ok=True)
     written: Dict[str, List[Path]] = {'results': [], 'exports': [], 'plots': [],
                                       'summary': []}
+    notes = []
+    jobs = report_jobs(result, out) if plots else []
+    if pool is not None and jobs:
+        # drawn while the files below are written, the slowest first
+        pool.submit(sorted(jobs, key=lambda job: SUBMIT_ORDER.get(job.kind, len(SUBMIT_ORDER))))
     results = out / 'results.yaml'
     with open(results, 'w', encoding='utf-8') as stream:
-        yaml.safe_dump(result.to_dict(), stream, sort_keys=False, default_flow_style=None,
-                       width=100)
+        yaml.dump(result.to_dict(), stream, Dumper=_DUMPER, sort_keys=False,
+                  default_flow_style=None, width=100)
     written['results'].append(results)
     written['exports'] = write_exports(result, out)
-    notes = []
-    if plots and not matplotlib_available():
+    if plots and pool is not None:
+        written['plots'] = pool.wait([job.path for job in jobs])
+        notes += [f'plot failed: {error}' for error in pool.errors]
+    elif plots and not matplotlib_available():
         notes.append('matplotlib is not installed: plots were skipped')
     elif plots:
-        written['plots'] = _plots(result, out)
+        written['plots'] = [p for p in (draw(job) for job in jobs) if p is not None]
     else:
         notes.append('plots were not requested')
     summary = out / 'summary.md'
@@ -78,28 +89,3 @@ def write_report(result: Any, out_dir: Union[str, Path], plots: bool = True
                        encoding='utf-8')
     written['summary'].append(summary)
     return written
-
-
-def _plots(result: Any, out: Path) -> List[Path]:
-    drawn = []
-    for frf in result.frfs:
-        stem = _file_name(frf.name)
-        drawn.append(plot_bode(frf, out / f'bode_{stem}.png'))
-        drawn.append(plot_coherence(frf, out / f'coherence_{stem}.png'))
-    if result.greybox is not None:
-        for name in result.greybox.time_s:
-            stem = _file_name(name)
-            drawn.append(plot_time_series(result.greybox, name, out / f'time_{stem}.png'))
-            analysis = residual_analysis(result.greybox, name)
-            if analysis is not None:
-                drawn.append(plot_residuals(analysis, out / f'resid_{stem}.png'))
-    if result.static is not None:
-        for key, fit in result.static.fits.items():
-            points = getattr(result.static, 'points', {}).get(key)
-            if points is not None:
-                drawn.append(plot_static_fit(key, fit, points[0], points[1],
-                                             out / f'static_{_file_name(key)}.png'))
-    pz = plot_pole_zero(result, out / 'pole_zero.png')
-    if pz is not None:
-        drawn.append(pz)
-    return drawn

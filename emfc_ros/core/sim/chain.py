@@ -113,8 +113,11 @@ CHUNK = 256
 #: outputs would depend on where the block boundaries fall. error_model 'numpy': a float
 #: division by zero gives inf or nan instead of raising ZeroDivisionError, so divisions carry
 #: no branch and loops with one vectorise (the parameters are validated: no divisor is zero).
+#: nogil: the kernel releases the GIL, so that the grey-box fit simulates parameter sets in
+#: threads. numba's cache key is the source file's content, not these options: they live in
+#: this file so that changing them recompiles.
 JIT_OPTIONS = {'fastmath': {'nnan', 'ninf', 'nsz', 'contract', 'afn', 'reassoc'},
-               'error_model': 'numpy'}
+               'error_model': 'numpy', 'nogil': True}
 
 try:    # compiled once each and inlined by LLVM into the chain (numba), plain Python otherwise
     from numba.extending import register_jitable as _register_jitable

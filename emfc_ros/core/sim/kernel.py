@@ -41,6 +41,25 @@ def numba_available() -> bool:
     return True
 
 
+def resolved_backend(backend: str = 'auto') -> str:
+    """
+    The backend ``'auto'`` stands for here.
+
+    Parameters
+    ----------
+    backend : {'auto', 'numba', 'numpy'}
+        A backend name.
+
+    Returns
+    -------
+    str
+        ``'numba'`` or ``'numpy'`` (``'auto'``: numba when it imports).
+    """
+    if backend == 'auto':
+        return 'numba' if numba_available() else 'numpy'
+    return backend
+
+
 def _jitted() -> Callable:
     global _JIT
     if _JIT is None:

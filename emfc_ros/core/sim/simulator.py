@@ -12,13 +12,15 @@ into blocks reproduces one block bit for bit.
 
 from __future__ import annotations
 
-from typing import Callable, Optional, Sequence
+import functools
+from typing import Callable, Optional, Sequence, Tuple
 
 import numpy as np
 
 from emfc_ros.core.model.linear import linearise
 from emfc_ros.core.model.load import loaded
 from emfc_ros.core.model.parameters import BalanceParameters
+from emfc_ros.core.model.peripherals import PositionSensor
 from emfc_ros.core.sim import chain
 from emfc_ros.core.sim.channels import channel_names, channel_units
 from emfc_ros.core.sim.converters import convert_V, lsb_V
@@ -154,6 +156,9 @@ def sensor_table(params: BalanceParameters) -> np.ndarray:
     """
     Inverse sensor characteristic at every ADC code (the kernel's lookup table).
 
+    Computed once per sensor characteristic and ADC (the last few are kept: a fit builds a
+    simulator per parameter set with the same sensor); callers must not modify it.
+
     Parameters
     ----------
     params : BalanceParameters
@@ -165,11 +170,21 @@ def sensor_table(params: BalanceParameters) -> np.ndarray:
         Position [m] for the codes ``-2**(bits-1) .. 2**(bits-1) - 1``.
     """
     conv = params.converters
-    codes = np.arange(-2 ** (conv.adc_bits - 1), 2 ** (conv.adc_bits - 1), dtype=float)
+    return _sensor_table(tuple(float(c) for c in params.sensor.coeffs_V_per_m_pow),
+                         int(conv.adc_bits), float(conv.adc_range_V), float(conv.sensor_range_m))
+
+
+@functools.lru_cache(maxsize=8)
+def _sensor_table(coeffs: Tuple[float, ...], adc_bits: int, adc_range_V: float,
+                  sensor_range_m: float) -> np.ndarray:
+    sensor = PositionSensor(coeffs)
+    codes = np.arange(-2 ** (adc_bits - 1), 2 ** (adc_bits - 1), dtype=float)
     # the kernel only sees voltages of the clipped position: stay inside the monotonic range
-    ends = params.sensor.voltage_V(np.array([-conv.sensor_range_m, conv.sensor_range_m]))
-    volts = np.clip(codes * lsb_V(conv.adc_bits, conv.adc_range_V), ends.min(), ends.max())
-    return np.asarray(params.sensor.position_m(volts), dtype=float)
+    ends = sensor.voltage_V(np.array([-sensor_range_m, sensor_range_m]))
+    volts = np.clip(codes * lsb_V(adc_bits, adc_range_V), ends.min(), ends.max())
+    # shared by the simulators of the same sensor; nothing writes to it (kept writeable: numba
+    # types a read-only array differently, which would compile the kernel a second time)
+    return np.asarray(sensor.position_m(volts), dtype=float)
 
 
 class Simulator:

@@ -1,0 +1,241 @@
+"""
+Derivatives of the simulated position with respect to the mechanics, from the linearised model.
+
+The grey-box fit (:mod:`~emfc_ros.core.ident.balance_greybox`) simulates the nonlinear balance,
+but over the shipped experiment the lever moves by tens of micrometres about its rest: the
+response is linear to about 1e-4 (the motor coefficient changes by 5.5e-4 per millimetre, the
+beams' angles stay below 1e-3 rad). The Jacobian of the fit, a finite difference of two full
+simulations per parameter (16 simulations for 8 parameters), is therefore taken from the
+linearised model instead, at the cost of about two simulations:
+
+* the linear model about the rest under the first setpoints (``x' = A x + B dF``, ``y = y0 +
+  C x``, :func:`~emfc_ros.core.model.linear.jacobians`, with the coil force's dependence on the
+  position, ``dF_c = k'(y0) I_c0 dy``, in ``A``), discretised as the simulator integrates it:
+  one RK4 step per substep with the force held over the sample (``Phi = I + hA + (hA)^2/2 +
+  (hA)^3/6 + (hA)^4/24``, ``Gamma = h (I + hA/2 + (hA)^2/6 + (hA)^3/24) B``, composed over the
+  substeps), so that it differs from the simulation by the nonlinearity only;
+* in modal form, ``y[n] - y0 = sum_ij r_ij s_ij[n]`` with ``s_ij[n + 1] = lambda_i s_ij[n] +
+  dF_j[n]`` (``r_ij`` the residues of input ``j`` in mode ``i``), whose derivative is
+  ``sum_ij (dr_ij s_ij + r_ij dlambda_i t_ij)`` with ``t_ij = ds_ij / dlambda_i`` the same
+  recursion driven by ``s_ij``: eight first-order complex filters over the record, whatever
+  the number of parameters; ``dr`` and ``dlambda`` are central differences of 4 x 4 matrices;
+* the rest position (the fit's stand-in for the offset force) shifts the whole response.
+
+The input forces are those of the recorded setpoints through the amplifiers (clipped to their
+current limits) and the load changer, as the simulator computes them. The fit checks this
+Jacobian against the simulation itself along two directions and uses the finite-difference one
+when they disagree (:func:`~emfc_ros.core.ident.greybox.fit_greybox`, ``output_derivatives``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Callable, Dict, Mapping, Optional, Sequence, Tuple
+
+import numpy as np
+from scipy import signal
+
+from emfc_ros.core.model.linear import jacobians
+from emfc_ros.core.model.load import loaded
+from emfc_ros.core.model.parameters import BalanceParameters, MechanicalParameters
+
+#: Central-difference step of the 4 x 4 quantities, relative to each parameter's magnitude
+#: (they are smooth and free of simulation noise).
+STEP = 1.0e-6
+
+
+def rk4_map(a: np.ndarray, b: np.ndarray, h: float, substeps: int = 1
+            ) -> Tuple[np.ndarray, np.ndarray]:
+    """
+    The RK4 map of ``x' = A x + B w`` over one sample, ``w`` held constant.
+
+    Parameters
+    ----------
+    a : ndarray, shape (n, n)
+        State matrix [1/s].
+    b : ndarray, shape (n, m)
+        Input matrix.
+    h : float
+        Sample period [s].
+    substeps : int
+        RK4 steps per sample.
+
+    Returns
+    -------
+    phi : ndarray, shape (n, n)
+        ``x[k + 1] = phi x[k] + gamma w[k]``.
+    gamma : ndarray, shape (n, m)
+        The input's part.
+    """
+    step = h / substeps
+    ha = step * a
+    eye = np.eye(a.shape[0])
+    ha2 = ha @ ha
+    ha3 = ha2 @ ha
+    phi1 = eye + ha + ha2 / 2.0 + ha3 / 6.0 + ha3 @ ha / 24.0
+    gamma1 = step * (eye + ha / 2.0 + ha2 / 6.0 + ha3 / 24.0) @ b
+    phi, gamma = phi1, gamma1
+    for _ in range(substeps - 1):
+        phi, gamma = phi1 @ phi, phi1 @ gamma + gamma1
+    return phi, gamma
+
+
+class LinearSensitivity:
+    """
+    Position and its derivatives with respect to mechanical parameters, linearised.
+
+    Parameters
+    ----------
+    setpoints_V : ndarray, shape (n, 2)
+        Coil and load-changer setpoints as applied [V] (the record).
+    sample_rate_Hz : float
+        Sample rate [Hz].
+    load_mass_kg : float
+        Mass on the pan [kg].
+    load_changer_coupled : bool
+        Whether the load changer's moving mass rides on the pan.
+    substeps : int
+        RK4 steps per sample of the simulation.
+    """
+
+    def __init__(self, setpoints_V: np.ndarray, sample_rate_Hz: float, load_mass_kg: float,
+                 load_changer_coupled: bool, substeps: int = 1) -> None:
+        self.setpoints_V = np.asarray(setpoints_V, dtype=float)
+        self.sample_rate_Hz = float(sample_rate_Hz)
+        self.load_mass_kg = float(load_mass_kg)
+        self.load_changer_coupled = bool(load_changer_coupled)
+        self.substeps = int(substeps)
+        self._inputs_key: Optional[tuple] = None
+        self._currents: Optional[Tuple[np.ndarray, np.ndarray]] = None
+
+    def _input_currents(self, params: BalanceParameters) -> Tuple[np.ndarray, np.ndarray]:
+        """Coil current [A] and pan force [N] per sample (fixed characteristics: cached)."""
+        conv = params.converters
+        key = (params.coil_amplifier, params.load_changer_amplifier, params.load_changer,
+               conv.dac_range_V, conv.coil_current_limit_A, conv.load_changer_current_limit_A)
+        if key != self._inputs_key:
+            u = np.clip(self.setpoints_V, -conv.dac_range_V, conv.dac_range_V)
+            i_coil = np.clip(params.coil_amplifier.current_A(u[:, 0]),
+                             -conv.coil_current_limit_A, conv.coil_current_limit_A)
+            i_lc = np.clip(params.load_changer_amplifier.current_A(u[:, 1]),
+                           -conv.load_changer_current_limit_A,
+                           conv.load_changer_current_limit_A)
+            self._currents = (np.asarray(i_coil, dtype=float),
+                              np.asarray(params.load_changer.force_N(i_lc), dtype=float))
+            self._inputs_key = key
+        return self._currents
+
+    def modal(self, params: BalanceParameters, x0: np.ndarray,
+              mechanics: MechanicalParameters) -> Tuple[np.ndarray, np.ndarray]:
+        """
+        Eigenvalues and residues of the discretised linear model.
+
+        Parameters
+        ----------
+        params : BalanceParameters
+            The balance (characteristics; its mechanics are replaced by ``mechanics``).
+        x0 : ndarray, shape (4,)
+            Rest state about which to linearise [rad, rad/s].
+        mechanics : MechanicalParameters
+            The (empty, uncoupled) mechanics to linearise.
+
+        Returns
+        -------
+        lam : ndarray, shape (4,)
+            Eigenvalues of the one-sample map.
+        res : ndarray, shape (4, 2)
+            Residues ``(C v_i)(w_i Gamma_j)`` [m/N per sample], coil force scaled by ``k(y0)``
+            so that the input is the coil current deviation [A].
+        """
+        i_coil, f_pan = self._input_currents(params)
+        mech = loaded(mechanics, self.load_mass_kg, self.load_changer_coupled)
+        y0 = float(mech.l2_m * np.sin(x0[0]) + mech.l3_m * np.sin(x0[1]))
+        k0 = float(params.motor.coefficient_N_per_A(y0))
+        dk = 1.0e-9
+        slope = float(params.motor.coefficient_N_per_A(y0 + dk)
+                      - params.motor.coefficient_N_per_A(y0 - dk)) / (2.0 * dk)
+        a, b, c, _ = jacobians(mech, np.asarray(x0, dtype=float),
+                               np.array([k0 * i_coil[0], f_pan[0]]))
+        # the coil force follows the position at every RK4 stage: F_c = k(y) I_c
+        a = a + np.outer(b[:, 0], slope * i_coil[0] * c[0])
+        phi, gamma = rk4_map(a, b, 1.0 / self.sample_rate_Hz, self.substeps)
+        lam, v = np.linalg.eig(phi)
+        w = np.linalg.inv(v)
+        res = (c[0] @ v)[:, None] * (w @ gamma)
+        res[:, 0] *= k0
+        return lam, res
+
+    def derivatives(self, params: BalanceParameters, x0: np.ndarray, names: Sequence[str],
+                    values: Mapping[str, float],
+                    with_values: Callable[[Dict[str, float]], BalanceParameters],
+                    rest_name: Optional[str] = None) -> np.ndarray:
+        """
+        Derivatives of the position over the record with respect to parameters.
+
+        Parameters
+        ----------
+        params : BalanceParameters
+            The balance at ``values``.
+        x0 : ndarray, shape (4,)
+            Its rest state under the first setpoints.
+        names : sequence of str
+            Parameters to differentiate by: names ``with_values`` understands (mechanical
+            parameters, mass-matrix entries) and ``rest_name``.
+        values : mapping of str to float
+            The current values of ``names``.
+        with_values : callable
+            ``with_values(values) -> BalanceParameters`` (mechanics replaced).
+        rest_name : str, optional
+            The parameter that is the rest position of the lever end [m]: it shifts the
+            response.
+
+        Returns
+        -------
+        ndarray, shape (n, len(names))
+            ``dy / dtheta`` [m per unit of each parameter].
+        """
+        i_coil, f_pan = self._input_currents(params)
+        n = i_coil.size
+        drive = np.column_stack((i_coil - i_coil[0], f_pan - f_pan[0]))
+        lam, res = self.modal(params, x0, params.mechanics)
+        # one of each conjugate pair, doubled; real modes once
+        keep = [i for i in range(lam.size) if lam[i].imag >= -1e-15 * abs(lam[i])]
+        weight = np.array([2.0 if lam[i].imag > 1e-15 * abs(lam[i]) else 1.0 for i in keep])
+        d_lam = np.zeros((len(keep), len(names)), dtype=complex)
+        d_res = np.zeros((len(keep), 2, len(names)), dtype=complex)
+        out = np.zeros((n, len(names)))
+        for k, name in enumerate(names):
+            if name == rest_name:
+                out[:, k] = 1.0
+                continue
+            v0 = float(values[name])
+            h = STEP * (abs(v0) or 1.0)
+            ends = []
+            for sign in (1.0, -1.0):
+                moved = with_values(dict(values, **{name: v0 + sign * h})).mechanics
+                # the offset force as at the current values (it is solved for the rest
+                # position; its effect on the linearisation is of second order)
+                moved = replace(moved, F_off_N=params.mechanics.F_off_N)
+                lam_s, res_s = self.modal(params, x0, moved)
+                order = [int(np.argmin(np.abs(lam_s - lam[i]))) for i in keep]
+                ends.append((lam_s[order], res_s[order]))
+            d_lam[:, k] = (ends[0][0] - ends[1][0]) / (2.0 * h)
+            d_res[:, :, k] = (ends[0][1] - ends[1][1]) / (2.0 * h)
+        # s_ij[m + 1] = lam_i s_ij[m] + drive_j[m];  t_ij = d s_ij / d lam_i. The real part of
+        # sum a z is sum (Re a Re z - Im a Im z): one real product of the complex signals
+        # viewed as interleaved real and imaginary columns.
+        signals = np.empty((n, 4 * len(keep)), dtype=complex)
+        coeff = np.empty((2 * signals.shape[1], len(names)))
+        col = 0
+        for m, i in enumerate(keep):
+            den = [1.0, -lam[i]]
+            for j in range(2):
+                s = signal.lfilter([0.0, 1.0], den, drive[:, j].astype(complex))
+                signals[:, col] = s
+                signals[:, col + 1] = signal.lfilter([0.0, 1.0], den, s)
+                for a in (weight[m] * d_res[m, j], weight[m] * res[i, j] * d_lam[m]):
+                    coeff[2 * col] = a.real
+                    coeff[2 * col + 1] = -a.imag
+                    col += 1
+        out += signals.view(np.float64) @ coeff
+        return out
