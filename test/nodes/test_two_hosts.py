@@ -296,6 +296,7 @@ def recorded(bag):
     return {'first': first, 'samples': samples,
             'names': [c['name'] for c in descriptions[-1]['channels']],
             'offset': descriptions[-1]['extra']['excitation_offset_samples'],
+            'offsets': [d['extra'].get('excitation_offset_samples') for d in descriptions],
             'excitation': excitation}
 
 
@@ -471,6 +472,14 @@ def test_the_two_computer_bag_equals_the_one_computer_bag_sample_for_sample(runs
     after = min(b['samples'].shape[1] - b['offset'] for b in (two, one))
     assert after >= total + SETTLE_SAMPLES
     window = [b['samples'][:, b['offset'] - before:b['offset'] + after] for b in (two, one)]
+    for key, bag in (('two computers', two), ('one computer', one)):
+        print(f'{key}: excitation offsets in the descriptions {bag["offsets"]}')
+    differ = window[0] != window[1]
+    if differ.any():
+        where = {names[c]: (int(np.flatnonzero(differ[c])[0]) - before,
+                            int(np.flatnonzero(differ[c])[-1]) - before, int(differ[c].sum()))
+                 for c in range(differ.shape[0]) if differ[c].any()}
+        print('differ (first, last excitation sample, count) per channel:', where)
     np.testing.assert_array_equal(window[0], window[1])
     # What makes that comparison meaningful: the excitation crossed the link and was
     # applied (the DAC's setpoint is the experiment's), and the balance answered it.
