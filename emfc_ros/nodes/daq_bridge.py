@@ -755,6 +755,11 @@ class DaqBridgeNode(Node):
                 new_epoch = True
             else:
                 new_epoch = False
+                # The device clock's start is known no earlier than the earliest arrival says:
+                # a first block that arrived late (a stall) must not leave the estimate of the
+                # device index behind for the run (setpoints written late by that much).
+                self._anchor_ns = min(self._anchor_ns,
+                                      arrival_ns - int(block.end_index * 1e9 / self._rate))
             if self._expected is not None:
                 if block.first_sample_index < self._expected:
                     self._counts['dropped_out_of_order_blocks'] += 1

@@ -115,6 +115,22 @@ def test_streamed_setpoints_are_applied_sample_exactly_with_underruns_counted(ba
     assert backend.health()['device_setpoint_late_samples'] - late == 100
 
 
+def test_a_late_first_frame_counts_its_unapplied_samples_as_underruns(backend):
+    # The first setpoint frame comes after the device clock passed its first sample: the
+    # samples behind the clock were output at the safe values, which the host must hear of.
+    _started(backend)
+    before = backend.health()
+    backend.read_block()                         # samples 0..399 at the safe values
+    ramp = np.vstack([np.linspace(-1.0, 1.0, 700), np.linspace(0.5, -0.5, 700)])
+    backend.write_setpoints(100, ramp)           # 100..799: 100..399 already passed
+    applied = backend.read_block().samples[[COIL, LOAD]]
+    assert np.array_equal(applied, _dac(ramp[:, 300:]))
+    health = backend.health()
+    assert health['device_setpoint_late_samples'] - before['device_setpoint_late_samples'] \
+        == 300
+    assert health['device_underrun_samples'] - before['device_underrun_samples'] == 300
+
+
 def test_outputs_are_clamped_to_their_limits_and_counted(backend):
     _started(backend, limits_V=(-1.0, 1.0))
     first = backend.device.index

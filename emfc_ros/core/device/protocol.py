@@ -840,7 +840,8 @@ class HeartbeatReply:
     watchdog_tripped : bool
         Whether the watchdog holds the outputs at their safe values.
     underrun_samples : int
-        Samples output at the safe value because the setpoint stream ran dry (since boot).
+        Samples output at the safe value because the setpoint stream ran dry, or because
+        its first frame came after the clock had passed them (since boot).
     watchdog_trips : int
         Watchdog trips since boot.
     watchdog_trip_index : int, optional

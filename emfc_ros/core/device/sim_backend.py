@@ -111,6 +111,9 @@ class SimulatedDevice:
         self.first_rejected_index: Optional[int] = None
         self.counters: Dict[str, int] = dict.fromkeys(ENGINE_COUNTERS, 0)
         self._gap_filled_before = 0             # gap-filled samples of earlier epochs
+        #: End of the samples of this epoch produced before the first setpoint frame came: a
+        #: late first frame's samples there were output at the safe values, uncounted so far.
+        self._unstreamed_end = 0
         self._rows: List[int] = []
         self._scale = np.ones(0)
         self._offset = np.zeros(0)
@@ -229,6 +232,7 @@ class SimulatedDevice:
             raise DeviceError('start before configure')
         self.epoch = (self.epoch + 1) % 2 ** 32
         self.index = 0
+        self._unstreamed_end = 0
         if self.queue is not None:
             self._gap_filled_before += self.queue.gap_filled_samples
         self.queue = ExcitationQueue(self.config.safe_values_V)
@@ -337,12 +341,19 @@ class SimulatedDevice:
     def _stream(self, first: int, n: int, out: np.ndarray) -> None:
         q = self.queue
         if q is None or q.tracker.expected is None:
-            return                                   # the host has not streamed yet
+            self._unstreamed_end = first + n         # the host has not streamed yet
+            return
         if q.head_index < first:                     # queued samples behind the clock
             late = min(first - q.head_index, q.queued)
             if late:
+                head = q.head_index
                 q.pop(late)
                 self.counters['setpoint_late_samples'] += late
+                # Late samples of a first frame were output at the safe values before the
+                # frame came, when no stream was there to run dry: underruns too (later ones
+                # were counted as underruns when their blocks ran).
+                self.counters['underrun_samples'] += max(
+                    0, min(head + late, self._unstreamed_end) - head)
         lead = max(0, q.head_index - first)          # before the stream's next sample
         if lead >= n:
             return
