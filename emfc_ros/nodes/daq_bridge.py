@@ -55,6 +55,7 @@ from emfc_ros.core.blocks import Block, Channel, Continuity, SequenceTracker, St
 from emfc_ros.core.device.backend import (check_generator_range, create_backend,
                                           DEFAULT_INPUTS, DEFAULT_OUTPUTS,
                                           device_config_from_mapping, DeviceConfig)
+from emfc_ros.core.device.clock import device_index_at, earliest_start_ns
 from emfc_ros.core.device.errors import DeviceConfigError, DeviceError
 from emfc_ros.core.device.faults import describe, Fault, FaultMonitor
 from emfc_ros.core.device.function_generator import GeneratorSpec, make_signal
@@ -758,8 +759,8 @@ class DaqBridgeNode(Node):
                 # The device clock's start is known no earlier than the earliest arrival says:
                 # a first block that arrived late (a stall) must not leave the estimate of the
                 # device index behind for the run (setpoints written late by that much).
-                self._anchor_ns = min(self._anchor_ns,
-                                      arrival_ns - int(block.end_index * 1e9 / self._rate))
+                self._anchor_ns = earliest_start_ns(self._anchor_ns, arrival_ns,
+                                                    block.end_index, self._rate)
             if self._expected is not None:
                 if block.first_sample_index < self._expected:
                     self._counts['dropped_out_of_order_blocks'] += 1
@@ -795,7 +796,7 @@ class DaqBridgeNode(Node):
 
     def _device_index_now(self) -> int:
         """The device's sample index now, from the epoch's START-anchored monotonic clock."""
-        return max(0, int((time.monotonic_ns() - self._anchor_ns) * 1e-9 * self._rate))
+        return device_index_at(time.monotonic_ns(), self._anchor_ns, self._rate)
 
     def _command_V(self) -> float:
         if self._command_N == 0.0:
