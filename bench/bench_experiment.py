@@ -88,6 +88,21 @@ def run_job(runner: str, plan: Optional[str], env: Dict[str, str]) -> Dict[str, 
     return {'timing': timing, 'out': out}
 
 
+def worker_start_cpu() -> float:
+    """CPU time of a plot worker's start: the fork server's imports (its preload), a warm-up."""
+    code = ('import time\n'
+            't = time.process_time()\n'
+            'import emfc_ros.core.report.worker_preload\n'
+            'import emfc_ros.core.ident.pipeline, emfc_ros.core.report.plots\n'
+            'import matplotlib.pyplot\n'
+            'from emfc_ros.core.report.background import _warm_up\n'
+            '_warm_up()\n'
+            'print(time.process_time() - t)\n')
+    done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                          timeout=300, check=True)
+    return float(done.stdout.split()[-1])
+
+
 def identification_baseline(bag: Path) -> Dict[str, float]:
     """The same bag identified and reported the issue-12 way and the current way."""
     from emfc_ros.core.ident.from_bag import identify_bag
@@ -113,6 +128,16 @@ def identification_baseline(bag: Path) -> Dict[str, float]:
         write_report(results['gauss_newton'], folder / 'pool', pool=pool)
         out['report, plots by the worker pool, after their start-up [s]'] = \
             time.perf_counter() - wall
+    from emfc_ros.core.report.background import draw, report_jobs
+    jobs = report_jobs(results['gauss_newton'], folder / 'figures')
+    (folder / 'figures').mkdir()
+    cpu = time.process_time()
+    for job in jobs:
+        draw(job)
+    out['figures drawn one after the other, CPU [s]'] = time.process_time() - cpu
+    out['figures'] = len(jobs)
+    out['plot workers: imports and warm-up (fork server and one worker), CPU [s]'] = \
+        worker_start_cpu()
     shutil.rmtree(folder, ignore_errors=True)
     for name in ('c1_Nm_per_rad', 'd1_Nms_per_rad', 'c2_Nm_per_rad', 'd2_Nms_per_rad'):
         a = results['least_squares'].greybox.fit
@@ -188,6 +213,20 @@ def main(argv=None) -> int:
               f'{ident["identify, gauss_newton, CPU [s]"]:.2f} s')
         print(f'  ratio report in process / worker pool: '
               f'{ident["report, plots in this process [s]"] / ident["report, plots by the worker pool, after their start-up [s]"]:.2f}')  # noqa: E501
+        # What the machine must do for one warm run, whatever the schedule: the job's process,
+        # the plot workers' start and the figures; on this many processors no run is shorter.
+        cpus = len(os.sched_getaffinity(0))
+        job_cpu = sorted(r['job process CPU (user + system, its threads; not the plot workers)']
+                         for r, label in zip(runs, labels) if label.startswith('warm'))
+        job_cpu_s = job_cpu[len(job_cpu) // 2]
+        budget = (job_cpu_s + ident['plot workers: imports and warm-up (fork server and one '
+                                    'worker), CPU [s]']
+                  + ident['figures drawn one after the other, CPU [s]'])
+        print(f'CPU budget of a warm run: job process {job_cpu_s:.2f} s (median) + plot '
+              f'workers\' start {ident["plot workers: imports and warm-up (fork server and one worker), CPU [s]"]:.2f} s '  # noqa: E501
+              f'+ {ident["figures"]:.0f} figures {ident["figures drawn one after the other, CPU [s]"]:.2f} s '  # noqa: E501
+              f'= {budget:.2f} s of CPU; on {cpus} processors no schedule takes less than '
+              f'{budget / cpus:.2f} s (target {TARGET_WARM_S:g} s)')
     if first_bag is not None:
         shutil.rmtree(first_bag.parent, ignore_errors=True)
     out = Path(args.json)

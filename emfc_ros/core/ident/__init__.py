@@ -7,25 +7,43 @@ estimation with least squares or pattern search, and fit metrics. See
 ``docs/identification.md``.
 """
 
+from importlib import import_module
+from typing import Any
+
 from emfc_ros.core.ident.errors import IdentificationError, IllConditionedFitWarning
-from emfc_ros.core.ident.frf import (cross_spectra, estimate_frf, FrequencyResponseData,
-                                     Spectra)
-from emfc_ros.core.ident.greybox import (DataSection, fit_greybox, GreyboxResult,
-                                         ParameterSpec, SectionFit, specs_from_mapping)
-from emfc_ros.core.ident.metrics import (CorrelationTest, fit_percent,
-                                         input_correlation_test, whiteness_test)
-from emfc_ros.core.ident.mimo import estimate_two_input_frf, TwoInputResponse
-from emfc_ros.core.ident.modal import Mode
-from emfc_ros.core.ident.pattern_search import (pattern_search, PatternSearchOptions,
-                                                PatternSearchResult)
-from emfc_ros.core.ident.periodic import average_periods, etfe, period_spectra
-from emfc_ros.core.ident.single_frequency import response_at
-from emfc_ros.core.ident.static_fit import (fit_motor_coefficient, fit_polynomial,
-                                            linear_least_squares, LinearFit,
-                                            MotorCoefficientFit, plateau_means, Plateaus,
-                                            PolynomialFit)
-from emfc_ros.core.ident.tf_fit import (fit_transfer_function, OrderSelection, select_order,
-                                        TransferFunctionFit)
+
+#: Public names and the submodule that holds each: imported on first use (PEP 562), so that
+#: importing a light submodule (the plan check's :mod:`~emfc_ros.core.ident.pipeline_config`)
+#: does not import scipy.signal and scipy.stats with the frequency-response modules.
+_LAZY = {
+    'cross_spectra': 'frf', 'estimate_frf': 'frf', 'FrequencyResponseData': 'frf',
+    'Spectra': 'frf', 'DataSection': 'greybox', 'fit_greybox': 'greybox',
+    'GreyboxResult': 'greybox', 'ParameterSpec': 'greybox', 'SectionFit': 'greybox',
+    'specs_from_mapping': 'greybox', 'CorrelationTest': 'metrics', 'fit_percent': 'metrics',
+    'input_correlation_test': 'metrics', 'whiteness_test': 'metrics',
+    'estimate_two_input_frf': 'mimo', 'TwoInputResponse': 'mimo', 'Mode': 'modal',
+    'PatternSearchOptions': 'pattern_search', 'PatternSearchResult': 'pattern_search',
+    'average_periods': 'periodic', 'etfe': 'periodic', 'period_spectra': 'periodic',
+    'response_at': 'single_frequency', 'fit_motor_coefficient': 'static_fit',
+    'fit_polynomial': 'static_fit', 'linear_least_squares': 'static_fit',
+    'LinearFit': 'static_fit', 'MotorCoefficientFit': 'static_fit',
+    'plateau_means': 'static_fit', 'Plateaus': 'static_fit', 'PolynomialFit': 'static_fit',
+    'fit_transfer_function': 'tf_fit', 'OrderSelection': 'tf_fit',
+    'select_order': 'tf_fit', 'TransferFunctionFit': 'tf_fit'}
+
+# The function shares its submodule's name: bound now, so that importing the submodule
+# (which sets the package attribute) can never shadow it (numpy only, light).
+from emfc_ros.core.ident.pattern_search import pattern_search  # noqa: E402,I100
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+    value = getattr(import_module(f'{__name__}.{module}'), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     'average_periods', 'CorrelationTest', 'cross_spectra', 'DataSection', 'estimate_frf',

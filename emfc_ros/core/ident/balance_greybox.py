@@ -23,23 +23,18 @@ simulation (issue 14).
 from __future__ import annotations
 
 from collections import OrderedDict
-from dataclasses import fields, replace
+from dataclasses import replace
 import threading
 from typing import Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
+from emfc_ros.core.ident.balance_names import DEFAULT_FREE, mechanical_names  # noqa: F401
 from emfc_ros.core.ident.greybox import DataSection
 from emfc_ros.core.ident.linear_sensitivity import LinearSensitivity
 from emfc_ros.core.model.operating_point import equilibrium, rest_position
 from emfc_ros.core.model.parameters import BalanceParameters, MechanicalParameters
 from emfc_ros.core.sim import min_substeps, Simulator
-
-#: Default free parameters (fields of MechanicalParameters): stiffnesses, dampings, the
-#: lever and coil-carrier inertias and the coil mass (together they set the three entries of
-#: the mass matrix, which is what the data determine), and the offset force.
-DEFAULT_FREE = ('c1_Nm_per_rad', 'd1_Nms_per_rad', 'c2_Nm_per_rad', 'd2_Nms_per_rad',
-                'J1c_kgm2', 'm3_kg', 'J2c_kgm2', 'F_off_N')
 
 #: Pseudo-parameters standing for the lever and coil-carrier inertias and the coil mass: the
 #: entries of the mass matrix at rest in the experiment's configuration [kg m^2], which is
@@ -65,18 +60,6 @@ _UNITS = (('_Nms_per_rad', 'N m s/rad'), ('_Nm_per_rad', 'N m/rad'), ('_m_per_s2
 _POSITION = 'position_m'
 #: Full-record simulations kept (one per thread evaluating residuals, and the last point).
 _CACHED_RECORDS = 4
-
-
-def mechanical_names() -> Tuple[str, ...]:
-    """
-    Names of the parameters the grey-box model accepts (all mechanical parameters).
-
-    Returns
-    -------
-    tuple of str
-        Field names of :class:`MechanicalParameters`, units in the names.
-    """
-    return tuple(f.name for f in fields(MechanicalParameters))
 
 
 def unit_of(name: str) -> str:

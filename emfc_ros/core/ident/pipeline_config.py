@@ -14,7 +14,7 @@ from typing import Any, Dict, Mapping, Optional, Tuple
 from emfc_ros.core.config import (get_bool, get_float, get_float_list, get_int, get_mapping,
                                   get_str, get_str_list, join, reject_unknown)
 from emfc_ros.core.errors import ConfigError
-from emfc_ros.core.ident.balance_greybox import DEFAULT_FREE, mechanical_names
+from emfc_ros.core.ident.balance_names import DEFAULT_FREE, mechanical_names
 from emfc_ros.core.model.parameters import BalanceParameters
 from emfc_ros.core.pan_load import MAX_LOAD_MASS_KG
 

@@ -6,13 +6,28 @@ folder a person can open. Plots need matplotlib (Agg backend); without it they a
 the summary says so.
 """
 
-from emfc_ros.core.report.exports import (models_dict, read_frf_csv, read_frf_npz,
-                                          write_exports)
-from emfc_ros.core.report.plots import (matplotlib_available, plot_bode, plot_coherence,
-                                        plot_pole_zero, plot_residuals, plot_static_fit,
-                                        plot_time_series, residual_analysis)
-from emfc_ros.core.report.summary import summary_markdown
-from emfc_ros.core.report.writer import write_report
+from importlib import import_module
+from typing import Any
+
+#: Public names and the submodule that holds each: imported on first use (PEP 562), so that
+#: the experiment runner can start its plot workers (:mod:`~emfc_ros.core.report.background`)
+#: without importing scipy and the identification modules first.
+_LAZY = {'models_dict': 'exports', 'read_frf_csv': 'exports', 'read_frf_npz': 'exports',
+         'write_exports': 'exports', 'matplotlib_available': 'plots', 'plot_bode': 'plots',
+         'plot_coherence': 'plots', 'plot_pole_zero': 'plots', 'plot_residuals': 'plots',
+         'plot_static_fit': 'plots', 'plot_time_series': 'plots',
+         'residual_analysis': 'plots', 'summary_markdown': 'summary',
+         'write_report': 'writer'}
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+    value = getattr(import_module(f'{__name__}.{module}'), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = ['matplotlib_available', 'models_dict', 'plot_bode', 'plot_coherence',
            'plot_pole_zero', 'plot_residuals', 'plot_static_fit', 'plot_time_series',
