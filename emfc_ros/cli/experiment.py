@@ -930,10 +930,6 @@ def main(argv: Optional[List[str]] = None) -> int:
         0 on success, 1 if the run failed, 2 for a bad plan (nothing started, no output
         folder), 130 after Ctrl-C (the bag closed and kept).
     """
-    # before anything imports scipy: its import-time docstring rewriting costs about 0.5 s
-    # of CPU in this process (emfc_ros.core.scipy_docs)
-    from emfc_ros.core.scipy_docs import skip_docstring_notes
-    skip_docstring_notes()
     parser = argparse.ArgumentParser(prog='emfc-experiment',
                                      description=__doc__.split('\n\n')[0])
     parser.add_argument('plan', nargs='?', default=None,

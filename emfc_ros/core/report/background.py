@@ -207,8 +207,7 @@ def _context() -> Any:
     """
     if 'forkserver' in multiprocessing.get_all_start_methods():
         ctx = multiprocessing.get_context('forkserver')
-        ctx.set_forkserver_preload(['emfc_ros.core.report.worker_preload',
-                                    'emfc_ros.core.report.background',
+        ctx.set_forkserver_preload(['emfc_ros.core.report.background',
                                     'emfc_ros.core.ident.pipeline',
                                     'emfc_ros.core.report.plots', 'matplotlib.pyplot'])
         return ctx
