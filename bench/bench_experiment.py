@@ -92,7 +92,7 @@ def worker_start_cpu() -> float:
     """CPU time of a plot worker's start: the fork server's imports (its preload), a warm-up."""
     code = ('import time\n'
             't = time.process_time()\n'
-            'import emfc_ros.core.report.worker_preload\n'
+            'import emfc_ros.core.report.background\n'
             'import emfc_ros.core.ident.pipeline, emfc_ros.core.report.plots\n'
             'import matplotlib.pyplot\n'
             'from emfc_ros.core.report.background import _warm_up\n'
