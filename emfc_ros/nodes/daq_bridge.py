@@ -192,6 +192,9 @@ FUNCGEN_FIELDS = {
 }
 #: Autostart retries a device that does not answer this often [s].
 RETRY_PERIOD_S = 5.0
+#: Excitation that arrives while the device is starting is kept for the start (at most this
+#: many samples per output): mapped before START is confirmed it would be lost at the start.
+EARLY_EXCITATION_MAX_SAMPLES = 1_000_000
 RUNTIME = ('watchdog_timeout_s', 'command_timeout_s', 'state_rate_Hz', 'excitation_lead_s')
 #: Every other parameter of the table is fixed at start-up.
 READ_ONLY = tuple(name for name in PARAMETERS if name not in RUNTIME)
@@ -256,6 +259,8 @@ class DaqBridgeNode(Node):
                 self._runtime[name] = float(PARAMETERS[name][0])
         self._lock = threading.RLock()
         self._start_lock = threading.Lock()
+        #: Excitation blocks received while the device was starting: (block, samples, clipped).
+        self._early: List[Tuple[Block, np.ndarray, int]] = []
         # Everything that waits for the device runs here, in order, never on the executor.
         self._jobs = DeviceJobs('daq-bridge-device')
         self._worker_faults: List[Tuple[str, Optional[int], str]] = []
@@ -609,6 +614,8 @@ class DaqBridgeNode(Node):
         self._start_time_ns = 0
         self._write_index: Optional[int] = None
         self._offset: Optional[int] = None
+        #: The device's clock restarted under a running excitation stream (a remap follows).
+        self._device_restarted = False
         self._exc_tracker = SequenceTracker()
         self._jump_guard = JumpGuard()
         self._exc_received_end = 0
@@ -646,11 +653,18 @@ class DaqBridgeNode(Node):
                                       'emergency stop latched: outputs at their safe values')
         except (DeviceError, DeviceConfigError) as exc:
             self._last_error = f'start failed: {exc}'
-            self._set_state('error')
+            with self._lock:
+                self._counts['excitation_not_running'] += len(self._early)
+                self._early = []
+                self._set_state('error')
             return False, self._last_error
         self._error = ''
         self._reader_stop.clear()
-        self._set_state('running')
+        with self._lock:        # the excitation kept during the start first, in order
+            self._set_state('running')
+            early, self._early = self._early, []
+            for block, samples, clipped in early:
+                self._take_excitation(block, samples, clipped)
         self._publish_descriptions()
         if getattr(self._backend, 'name', '') != 'sim':      # sim: the timer reads
             self._reader = threading.Thread(target=self._read_loop, daemon=True,
@@ -750,6 +764,7 @@ class DaqBridgeNode(Node):
                 self._last_end = None
                 self._write_index = None
                 self._offset = None            # the device index restarted: remap
+                self._device_restarted = self._exc_received_end > 0
                 self._queue = ExcitationQueue(self._safe)
                 self._anchor_ns = arrival_ns - int(block.end_index * 1e9 / self._rate)
                 self._counts['epoch_changes'] += 1
@@ -875,6 +890,25 @@ class DaqBridgeNode(Node):
         clipped = int(np.count_nonzero((samples < self._lo) | (samples > self._hi)))
         if clipped:
             np.clip(samples, self._lo, self._hi, out=samples)
+        with self._lock:
+            if self._state != 'running':
+                self._hold_excitation(block, samples, clipped)
+                return
+        self._take_excitation(block, samples, clipped)
+
+    def _hold_excitation(self, block: Block, samples: np.ndarray, clipped: int) -> None:
+        """Excitation before the device runs: kept for the start, or dropped and counted."""
+        held = sum(b.n_samples for b, _, _ in self._early)
+        if self._state == 'starting' and held + block.n_samples <= EARLY_EXCITATION_MAX_SAMPLES:
+            self._early.append((block, samples, clipped))
+            return
+        self._counts['excitation_not_running'] += 1
+        self._last_error = (f'excitation block at sample {block.first_sample_index} dropped: the '
+                            f'device is not running (state {self._state})')
+        self.get_logger().warning(self._last_error, throttle_duration_sec=5.0)
+
+    def _take_excitation(self, block: Block, samples: np.ndarray, clipped: int) -> None:
+        """Queue an excitation block for the device (the device runs)."""
         remap = False
         with self._lock:
             try:
@@ -913,6 +947,19 @@ class DaqBridgeNode(Node):
                 if self._write_index is not None:
                     start = max(start, self._write_index)
                 self._offset = start - block.first_sample_index
+                restarted, self._device_restarted = self._device_restarted, False
+                if block.first_sample_index > 0 and \
+                        (kind in (Continuity.FIRST, Continuity.RESTART) or restarted):
+                    # The device applies this epoch's excitation from here on: what came
+                    # before it was not applied (or in an earlier device epoch). A remap
+                    # after safe outputs (watchdog, e-stop) is that fault's, not this one.
+                    self._latch([self._monitor.add(
+                        'excitation_start_missing', start, None,
+                        f'the excitation is applied from its sample '
+                        f'{block.first_sample_index} on (device sample {start}): its samples '
+                        f'0 to {block.first_sample_index - 1} never reached the device in this '
+                        'device epoch, so the recorded excitation before them was not applied',
+                        True)])
                 self._queue = ExcitationQueue(self._safe)
                 self._acked = -1
                 remap = True
@@ -1266,7 +1313,8 @@ class DaqBridgeNode(Node):
                     'published_samples', 'published_gaps', 'published_missing_samples',
                     'dropped_out_of_order_blocks', 'malformed_blocks', 'reader_errors',
                     'setpoint_samples_written', 'setpoint_late_samples',
-                    'setpoint_write_errors', 'epoch_changes', 'excitation_dropped_estop'):
+                    'setpoint_write_errors', 'epoch_changes', 'excitation_dropped_estop',
+                    'excitation_not_running'):
             values[key] = self._counts.get(key, 0)
         for key in ('watchdog_trip_device_index', 'emergency_stop_device_index'):
             if key in self._counts:

@@ -290,6 +290,28 @@ def test_watchdog_drives_outputs_safe_within_one_block_and_setpoints_are_clamped
         TIMEOUT_S)
 
 
+def test_a_stream_taken_after_its_sample_0_is_a_latched_fault(executor, ros_context, emulator):
+    # The bridge first hears an excitation stream at its sample 5000 (it began before the
+    # device ran): the recorded samples 0 to 4999 were never applied, which must fail the run.
+    bridge = udp_bridge(ros_context, emulator)
+    probe = Probe(ros_context)
+    setup_nodes(executor, bridge, probe.node)
+    assert ros_harness.spin_until(
+        executor, lambda: len(probe.blocks) >= 2 and
+        probe.excitation.get_subscription_count() >= 1, TIMEOUT_S)
+    for msg in excitation_blocks(5000, 4, 0.25, 0.0):
+        probe.excitation.publish(msg)
+    assert ros_harness.spin_until(
+        executor, lambda: probe.faults() == ['excitation_start_missing']
+        and probe.level() == DiagnosticStatus.ERROR, TIMEOUT_S)
+    (fault,) = bridge.faults()
+    assert fault.kind == 'excitation_start_missing' and fault.exact
+    assert 'samples 0 to 4999' in fault.message
+    # It was applied from there on, as mapped.
+    assert ros_harness.spin_until(
+        executor, lambda: np.any(np.abs(applied(probe)[1] - 0.25) <= DAC_LSB_V), TIMEOUT_S)
+
+
 def test_emergency_stop_acts_within_one_block_and_latches_until_reset(
         executor, ros_context, emulator):
     bridge = udp_bridge(ros_context, emulator, excitation_mode='function_generator',

@@ -40,6 +40,11 @@ Kinds (:data:`KINDS`):
 ``generator_unconfirmed``
     The device did not confirm a change of its function generator made while running (or
     the one restoring it after an emergency stop): it may still output the old one.
+``excitation_start_missing``
+    The daq_bridge mapped an excitation stream onto the device clock from a block after the
+    stream's sample 0 (the stream began before the device ran, or the device's clock
+    restarted under it): the samples before that block were not applied in this device
+    epoch, although a recording may hold them.
 """
 
 from __future__ import annotations
@@ -49,7 +54,7 @@ from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 KINDS = ('device_watchdog', 'device_underrun', 'device_setpoint_gap',
          'device_setpoint_rejected', 'device_lost', 'excitation_watchdog', 'emergency_stop',
-         'safe_outputs_unconfirmed', 'generator_unconfirmed')
+         'safe_outputs_unconfirmed', 'generator_unconfirmed', 'excitation_start_missing')
 #: Cumulative health counters compared with their values at the start of a run.
 BASELINE_KEYS = ('device_underrun_samples', 'device_watchdog_trips', 'reconnects',
                  'device_gap_filled_samples', 'device_setpoint_frames_rejected',
