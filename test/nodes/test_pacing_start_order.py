@@ -227,7 +227,7 @@ def test_any_start_order_answers_the_whole_experiment(tmp_path, processes, execu
 
     assert ros_harness.spin_until(
         executor, lambda: observer.measured() >= total and observer.done is True
-        and observer.status['state'] == 'done'
+        and observer.status is not None and observer.status['state'] == 'done'
         and observer.status['acknowledged_sample_index'] == total,
         START_TIMEOUT_S + TIMEOUT_S), \
         f'{observer.status}\n--- generator\n{gen.output()}\n--- plant\n{plant.output()}'
