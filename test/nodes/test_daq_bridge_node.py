@@ -224,6 +224,17 @@ def test_faults_are_reported_and_no_wrong_sample_is_published(executor, ros_cont
     assert probe.diag('state') == 'running'
 
 
+def started_udp_bridge(executor, ros_context, emulator, **overrides):
+    """A udp bridge on the emulator, streaming blocks, and a probe subscribed to it."""
+    bridge = udp_bridge(ros_context, emulator, **overrides)
+    probe = Probe(ros_context)
+    setup_nodes(executor, bridge, probe.node)
+    assert ros_harness.spin_until(
+        executor, lambda: len(probe.blocks) >= 2 and
+        probe.excitation.get_subscription_count() >= 1, TIMEOUT_S)
+    return bridge, probe
+
+
 def excitation_blocks(first, count, coil_V, load_V, n=500, epoch=1):
     return [block_to_msg(first + i * n, RATE, epoch,
                          np.vstack([np.full(n, coil_V), np.full(n, load_V)]))
@@ -239,14 +250,9 @@ def applied(probe, channel=0):
 
 def test_watchdog_drives_outputs_safe_within_one_block_and_setpoints_are_clamped(
         executor, ros_context, emulator):
-    bridge = udp_bridge(ros_context, emulator, watchdog_timeout_s=0.3,
-                        output_min_V=[-1.0, -1.0], output_max_V=[1.0, 1.0],
-                        excitation_lead_s=0.05)
-    probe = Probe(ros_context)
-    setup_nodes(executor, bridge, probe.node)
-    assert ros_harness.spin_until(
-        executor, lambda: len(probe.blocks) >= 2 and
-        probe.excitation.get_subscription_count() >= 1, TIMEOUT_S)
+    bridge, probe = started_udp_bridge(executor, ros_context, emulator, watchdog_timeout_s=0.3,
+                                       output_min_V=[-1.0, -1.0], output_max_V=[1.0, 1.0],
+                                       excitation_lead_s=0.05)
     # 1 s of excitation at once, coil at 2 V (beyond the 1 V limit), then silence.
     for msg in excitation_blocks(0, 20, 2.0, 0.5):
         probe.excitation.publish(msg)
@@ -293,12 +299,7 @@ def test_watchdog_drives_outputs_safe_within_one_block_and_setpoints_are_clamped
 def test_a_stream_taken_after_its_sample_0_is_a_latched_fault(executor, ros_context, emulator):
     # The bridge first hears an excitation stream at its sample 5000 (it began before the
     # device ran): the recorded samples 0 to 4999 were never applied, which must fail the run.
-    bridge = udp_bridge(ros_context, emulator)
-    probe = Probe(ros_context)
-    setup_nodes(executor, bridge, probe.node)
-    assert ros_harness.spin_until(
-        executor, lambda: len(probe.blocks) >= 2 and
-        probe.excitation.get_subscription_count() >= 1, TIMEOUT_S)
+    bridge, probe = started_udp_bridge(executor, ros_context, emulator)
     for msg in excitation_blocks(5000, 4, 0.25, 0.0):
         probe.excitation.publish(msg)
     assert ros_harness.spin_until(

@@ -7,10 +7,8 @@ estimation with least squares or pattern search, and fit metrics. See
 ``docs/identification.md``.
 """
 
-from importlib import import_module
-from typing import Any
-
 from emfc_ros.core.ident.errors import IdentificationError, IllConditionedFitWarning
+from emfc_ros.core.lazy_names import lazy_getattr
 
 #: Public names and the submodule that holds each: imported on first use (PEP 562), so that
 #: importing a light submodule (the plan check's :mod:`~emfc_ros.core.ident.pipeline_config`)
@@ -36,13 +34,7 @@ _LAZY = {
 from emfc_ros.core.ident.pattern_search import pattern_search  # noqa: E402,I100
 
 
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
-    value = getattr(import_module(f'{__name__}.{module}'), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_getattr(__name__, _LAZY, globals())
 
 
 __all__ = [

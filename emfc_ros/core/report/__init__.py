@@ -6,8 +6,7 @@ folder a person can open. Plots need matplotlib (Agg backend); without it they a
 the summary says so.
 """
 
-from importlib import import_module
-from typing import Any
+from emfc_ros.core.lazy_names import lazy_getattr
 
 #: Public names and the submodule that holds each: imported on first use (PEP 562), so that
 #: the experiment runner can start its plot workers (:mod:`~emfc_ros.core.report.background`)
@@ -20,13 +19,7 @@ _LAZY = {'models_dict': 'exports', 'read_frf_csv': 'exports', 'read_frf_npz': 'e
          'write_report': 'writer'}
 
 
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
-    value = getattr(import_module(f'{__name__}.{module}'), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_getattr(__name__, _LAZY, globals())
 
 
 __all__ = ['matplotlib_available', 'models_dict', 'plot_bode', 'plot_coherence',
