@@ -87,6 +87,7 @@ from emfc_ros.core.weighing.profiles import parse_load_schedule
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
     node_diagnostics, steady_clock, subscribe_device_inputs, subscribe_excitation)
+from emfc_ros.nodes.flow_control import AckFlowControl
 from emfc_ros.nodes.params import declare_table, refuse_unknown
 from emfc_ros.nodes.spin import node_main
 
@@ -298,6 +299,10 @@ class PlantSimulatorNode(Node):
         self._pub_clock = self.create_publisher(Clock, '/clock', BLOCK_QOS) \
             if self._mode in ('owner', 'lockstep') else None
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        # Owner mode owns time: a subscriber that was not scheduled for a moment slows the
+        # simulation instead of losing blocks (flow_control; no waits in other modes).
+        self._flow = AckFlowControl(self._pub['measurements'] if self._mode == 'owner'
+                                    else None)
         self._min_subscribers = self._min_subscribers_param()
         self._excitation_timer = None
         hold = self._mode == 'owner' and self._min_subscribers > 0
@@ -563,6 +568,7 @@ class PlantSimulatorNode(Node):
             builder = self._builders.setdefault(topic, BlockMessageBuilder())
             pub.publish(builder.build(first_index, self._rate, self._epoch, rows))
         self._blocks_out += 1
+        self._flow.published(out.nbytes)
 
     def _simulate(self, first_index: int, setpoints: np.ndarray, stamp_ns: int) -> None:
         """Apply the effort command, simulate, publish the clock, the block and the states."""
@@ -885,7 +891,8 @@ class PlantSimulatorNode(Node):
                        'min_subscribers': self._min_subscribers,
                        'states_published': self._states.published,
                        'states_decimated': self._states.decimated,
-                       'excitation_subscribed': self._excitation_timer is None})
+                       'excitation_subscribed': self._excitation_timer is None,
+                       **self._flow.counters()})
         if self._mode == 'lockstep':
             lock = self._lock
             wall = time.monotonic() - lock.first_wall_s if lock.started else 0.0

@@ -43,6 +43,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rcl_interfaces.srv import GetParameters, ListParameters
 from rclpy.clock import Clock as RosClock, ClockType
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
@@ -294,6 +295,8 @@ class RecorderNode(Node):
         self._writer: Optional[QueuedBagWriter] = None
         self._recorded: Dict[str, Tuple[object, int]] = {}
         self._faults: Dict[tuple, dict] = {}
+        # Messages the middleware reports lost before they reached a subscription, per topic.
+        self._lost: Dict[str, int] = {}
         # Descriptions and experiment documents that did not parse (recorded anyway).
         self._bad_descriptions = 0
         self._bad_description_error = ''
@@ -404,6 +407,7 @@ class RecorderNode(Node):
         self._unrecordable = {}
         self._node_parameters, self._unreachable, self._fetches = {}, {}, {}
         self._faults = {}
+        self._lost = {}
         queued.set_custom_data('emfc_ros.version', __version__)
         # Wall time, whatever clock stamps the messages (simulated time starts near 0).
         queued.set_custom_data('emfc_ros.start_time_ns', str(time.time_ns()))
@@ -507,10 +511,25 @@ class RecorderNode(Node):
         else:
             def callback(raw, cid=cid):
                 put(cid, clock.now().nanoseconds, raw)
-        sub = self.create_subscription(msg_class, topic, callback, qos, raw=True)
+        sub = self.create_subscription(
+            msg_class, topic, callback, qos, raw=True,
+            event_callbacks=SubscriptionEventCallbacks(
+                message_lost=lambda info, topic=topic: self._on_lost(topic, info)))
         self._recorded[topic] = (sub, cid)
         self.get_logger().info(f'recording {topic} ({msgtype}, {qos.reliability.name}, '
                                f'{qos.durability.name})')
+
+    def _on_lost(self, topic: str, info) -> None:
+        """Messages lost in transport (a publisher's history overran): counted, kept."""
+        if self._writer is None:
+            return
+        self._lost[topic] = self._lost.get(topic, 0) + int(info.total_count_change)
+        self.get_logger().error(
+            f'{topic}: {info.total_count_change} message(s) lost before they reached the '
+            f'recorder ({self._lost[topic]} in all): the bag has gaps (custom data '
+            'emfc_ros.lost_messages)', throttle_duration_sec=5.0)
+        self._writer.set_custom_data('emfc_ros.lost_messages',
+                                     yaml.safe_dump(dict(self._lost), sort_keys=True))
 
     def _bad_description(self, topic: str, exc: Exception) -> None:
         """A description that did not parse: recorded as it came, counted and reported."""
@@ -632,6 +651,7 @@ class RecorderNode(Node):
         status = {'state': self._state, 'output': str(self._output or ''),
                   'error': self._error, 'topics': sorted(self._recorded),
                   'device_faults': len(self._faults),
+                  'lost_messages': sum(self._lost.values()),
                   'bad_descriptions': self._bad_descriptions,
                   'unrecordable': dict(self._unrecordable)}
         if self._writer is not None:
@@ -675,6 +695,12 @@ class RecorderNode(Node):
                 level = DiagnosticStatus.WARN
                 message = (f'{self._bad_descriptions} malformed description(s) recorded as '
                            'received, not interpreted')
+        if self._lost:
+            values['lost_messages'] = sum(self._lost.values())
+            values.update({f'lost {t}': n for t, n in sorted(self._lost.items())})
+            level, message = DiagnosticStatus.ERROR, (
+                f'{sum(self._lost.values())} message(s) lost before they reached the recorder: '
+                'the bag has gaps (custom data emfc_ros.lost_messages)')
         if self._faults:
             values['device_faults'] = len(self._faults)
             level, message = DiagnosticStatus.ERROR, (

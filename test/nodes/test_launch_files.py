@@ -397,8 +397,14 @@ def sim_run(stub, tmp_path_factory):
         finished = ros_harness.spin_until(
             executor, lambda: observer.done is True
             and _recorded(observer, '/emfc/measurements') >= n_blocks, START_TIMEOUT_S)
+        # The plant's diagnostics (1 Hz) once they count every block.
+        ros_harness.spin_until(executor, lambda: int(
+            (observer.diag('plant_simulator') or (0, '', {}))[2].get('blocks_out', 0))
+            >= n_blocks, TIMEOUT_S)
         result = {'finished': finished, 'status': observer.status, 'done': observer.done,
-                  'alive': [p.alive() for p in procs], 'output': output(),
+                  'alive': [p.alive() for p in procs],
+                  'output': f"recorder: {observer.diag('recorder')}\n"
+                            f"plant: {observer.diag('plant_simulator')}\n{output()}",
                   'plant': observer.diag('plant_simulator'), 'launched': launched,
                   'experiment': experiment, 'bag': bag}
         result['recorder_exit'] = recorder.stop()
@@ -438,6 +444,12 @@ def test_sim_experiment_answers_the_whole_default_trajectory(sim_run):
                                expected[1], atol=DAC_LSB_V)
     exc = streams['/emfc/excitation']
     assert exc.first_sample_index == 0 and exc.n_samples == total
+    # The plant owns time: every 20 blocks it waited for the recorder's acknowledgements
+    # (flow_control), so a recorder that is not scheduled for a moment loses nothing.
+    plant = sim_run['plant'][2]
+    assert int(plant['blocks_out']) == total // 1000
+    print('plant flow control:', {k: v for k, v in plant.items() if k.startswith('ack')})
+    assert int(plant['ack_waits']) == total // 1000 // 20, plant
 
 
 @pytest.mark.slow
