@@ -75,6 +75,12 @@ def _weighing() -> List[Callable]:
     return [_jitted(), _adaptive_jitted()]
 
 
+def _modal_filter() -> List[Callable]:
+    from emfc_ros.core.ident.modal_filter import _jitted, modal_pair
+    modal_pair(0.5 + 0.1j, np.zeros(8))
+    return [_jitted()]
+
+
 #: The kernels by name, each with the call that compiles or loads it through its real code path
 #: (so the signatures are the ones the programs use). Not here: the closed loop's
 #: ``loop_block`` takes the chain's dispatcher as an argument, which numba does not cache; it
@@ -83,6 +89,7 @@ KERNELS: Dict[str, Callable[[], List[Callable]]] = {
     'simulator chain': _simulator,
     'plant kernel (bare mechanics)': _plant_kernel,
     'weighing filter': _weighing,
+    'modal filter (grey-box Jacobian)': _modal_filter,
 }
 
 

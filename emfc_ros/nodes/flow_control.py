@@ -4,10 +4,12 @@ Back-pressure from reliable subscribers on a node that owns time.
 A reliable KEEP_LAST writer overwrites its oldest unacknowledged message when its history
 is full: a subscriber that was not scheduled for a moment (a recorder on a loaded host)
 then loses messages for good, and only its ``message_lost`` event says so. Where the
-publishing node owns time (the plant simulator in ``owner`` mode, the signal generator with
-``pacing: consumer``) nothing is lost by waiting, so after every batch of blocks the node
-waits, bounded, until every matched reliable subscription has acknowledged them. Nodes in
-real time (the DAQ bridge, wall pacing) never wait.
+publishing node owns time (the plant simulator in ``owner`` mode) nothing is lost by
+waiting, so after every batch of blocks it waits, bounded, until every matched reliable
+subscription has acknowledged them. Nodes in real time never wait: the DAQ bridge, and the
+signal generator, whose consumer may be a device (a consumer-paced generator feeding a plant
+in owner mode is held back by the plant's acknowledgements, ``window_blocks`` ahead of it, so
+its excitation writer cannot overrun either).
 
 A subscriber acknowledges when the writer sends a heartbeat. Fast DDS sends one with the
 data each time about half the socket send buffer (``net.core.wmem_default``, 208 KiB here:

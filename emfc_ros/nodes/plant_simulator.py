@@ -77,7 +77,6 @@ from emfc_ros.core.excitation_queue import DROPPED, ExcitationQueue
 from emfc_ros.core.model.parameters import BalanceParameters
 from emfc_ros.core.paths import config_file
 from emfc_ros.core.sim.channels import channel_names, channel_units, MEASURED, REFERENCE
-from emfc_ros.core.sim.closed_loop import ClosedLoopSimulator
 from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V, saturation_counts
 from emfc_ros.core.sim.resolution import simulator_resolution
 from emfc_ros.core.sim.simulator import Simulator
@@ -455,6 +454,8 @@ class PlantSimulatorNode(Node):
         if self._mode == 'lockstep':
             raise ValueError('control.enabled: the in-loop controller and the lockstep mode '
                              '(an external controller) exclude each other')
+        # Imported here: the controller design needs scipy.signal (a second of start-up).
+        from emfc_ros.core.sim.closed_loop import ClosedLoopSimulator
         looped = ClosedLoopSimulator(sim, loop)
         d = looped.design
         self.get_logger().info(
@@ -536,7 +537,7 @@ class PlantSimulatorNode(Node):
                  # [stream sample index, load [kg]] of the run-time changes, the latest last
                  'load_changes': [list(c) for c in self._load_changes]}
         if self._sim is not None:
-            sim = self._sim.sim if isinstance(self._sim, ClosedLoopSimulator) else self._sim
+            sim = getattr(self._sim, 'sim', self._sim)      # the closed loop's plant
             extra['resolution'] = {
                 name: value for name, value in simulator_resolution(
                     sim.params, sim.noise, sim.quantisation,

@@ -42,7 +42,6 @@ from emfc_ros.core.signals import Experiment, experiment_from_config, load_exper
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS,
     node_diagnostics)
-from emfc_ros.nodes.flow_control import AckFlowControl
 from emfc_ros.nodes.params import (declare_table, pending_refusals, refuse_choice,
                                    refuse_unknown)
 from emfc_ros.nodes.spin import node_main
@@ -144,7 +143,6 @@ class SignalGeneratorNode(Node):
         self._block_size = 0
         self._max_blocks_per_tick = 0
         self._min_subscribers = 0
-        self._flow = AckFlowControl(None)
         self.create_timer(1.0, self._publish_diagnostics, clock=self._steady)
         self._publish_done(False)
         ok, reason = self._arm()    # refused while a start-up value was refused
@@ -290,10 +288,6 @@ class SignalGeneratorNode(Node):
                 return False, f'consumer pacing refused: {exc}'
             self._consumer_pacer.reset(self._started_at)
             self._clock_pacer = None
-        # Consumer pacing owns time: a subscriber that was not scheduled for a moment (a
-        # recorder) slows the experiment instead of losing blocks (flow_control).
-        self._flow = AckFlowControl(self._pub_blocks if self._consumer_pacer is not None
-                                    else None)
         self._waiting = ''
         period = float(self._param('tick_period_s'))
         if period == 0.0:
@@ -453,7 +447,6 @@ class SignalGeneratorNode(Node):
             self._next_index += n
             self._sent_end = max(self._sent_end, self._next_index)
             self._blocks_sent += 1
-            self._flow.published(samples.nbytes)
             budget -= 1
         if self._consumer_pacer is not None:
             self._consumer_pacer.sent(self._next_index)
@@ -517,8 +510,7 @@ class SignalGeneratorNode(Node):
         values.update({'blocks_sent': self._blocks_sent,
                        'elapsed_s': f'{elapsed:.3f}',
                        'sample_rate_Hz': rate,
-                       'rejected_acknowledgements': self._rejected_acks,
-                       **self._flow.counters()})
+                       'rejected_acknowledgements': self._rejected_acks})
         if self._clock_pacer is not None and self._state == 'running':
             lag = self._clock_pacer.lag_s(time.monotonic(), self._next_index, rate)
             values['lag_s'] = f'{lag:.6f}'

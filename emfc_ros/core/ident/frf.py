@@ -29,7 +29,6 @@ from dataclasses import dataclass, field
 from typing import Optional, Sequence, Tuple, Union
 
 import numpy as np
-from scipy import signal as sps
 from scipy import special
 
 from emfc_ros.core.ident.errors import IdentificationError
@@ -339,6 +338,33 @@ def _channel_records(channels: Union[np.ndarray, Sequence[np.ndarray]]) -> list:
     return records
 
 
+def window_samples(window: WindowSpec, nperseg: int) -> np.ndarray:
+    """
+    The window of a Welch segment, as ``scipy.signal.get_window(window, nperseg)`` gives it.
+
+    The default ``'hann'`` (periodic, for spectral analysis) is computed here; any other
+    window comes from scipy.signal, imported then (it takes about a second to import).
+
+    Parameters
+    ----------
+    window : str or tuple
+        A window name (with parameters as a tuple) scipy.signal.get_window accepts.
+    nperseg : int
+        Segment length [samples].
+
+    Returns
+    -------
+    ndarray
+        The window, ``nperseg`` values.
+    """
+    if isinstance(window, str) and window in ('hann', 'han', 'hanning'):
+        if nperseg == 1:
+            return np.ones(1)
+        return 0.5 - 0.5 * np.cos(2.0 * np.pi * np.arange(nperseg) / nperseg)
+    from scipy import signal as sps
+    return sps.get_window(window, nperseg)
+
+
 def cross_spectra(channels: Union[np.ndarray, Sequence[np.ndarray]], sample_rate_Hz: float, *,
                   nperseg: Optional[int] = None, noverlap: Optional[int] = None,
                   window: WindowSpec = 'hann', detrend: Union[str, bool] = 'constant',
@@ -401,7 +427,7 @@ def cross_spectra(channels: Union[np.ndarray, Sequence[np.ndarray]], sample_rate
             raise IdentificationError(f'window array must have nperseg = {nperseg} samples, '
                                       f'got shape {win.shape}')
     else:
-        win = sps.get_window(window, nperseg)
+        win = window_samples(window, nperseg)
     step = nperseg - noverlap
     n_seg = (n - noverlap) // step
     matrix = welch_sums(records, nperseg, step, n_seg, win, detrend)

@@ -33,8 +33,8 @@ from dataclasses import replace
 from typing import Callable, Dict, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
-from scipy import signal
 
+from emfc_ros.core.ident.modal_filter import modal_pair
 from emfc_ros.core.model.linear import jacobians
 from emfc_ros.core.model.load import loaded
 from emfc_ros.core.model.parameters import BalanceParameters, MechanicalParameters
@@ -228,11 +228,8 @@ class LinearSensitivity:
         coeff = np.empty((2 * signals.shape[1], len(names)))
         col = 0
         for m, i in enumerate(keep):
-            den = [1.0, -lam[i]]
             for j in range(2):
-                s = signal.lfilter([0.0, 1.0], den, drive[:, j].astype(complex))
-                signals[:, col] = s
-                signals[:, col + 1] = signal.lfilter([0.0, 1.0], den, s)
+                signals[:, col], signals[:, col + 1] = modal_pair(lam[i], drive[:, j])
                 for a in (weight[m] * d_res[m, j], weight[m] * res[i, j] * d_lam[m]):
                     coeff[2 * col] = a.real
                     coeff[2 * col + 1] = -a.imag

@@ -36,7 +36,6 @@ from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
 from scipy import linalg, optimize
-from scipy import signal as sps
 
 from emfc_ros.core.blas_threads import with_single_blas_thread
 from emfc_ros.core.ident.errors import IdentificationError
@@ -134,7 +133,7 @@ class TransferFunctionFit:
         den = self.denominator[::-1] / w ** (na - np.arange(na + 1))
         return _polyval(num, s) / _polyval(den, s)
 
-    def to_lti(self) -> sps.TransferFunction:
+    def to_lti(self) -> 'scipy.signal.TransferFunction':  # noqa: F821
         """
         The model as :class:`scipy.signal.TransferFunction`.
 
@@ -143,6 +142,7 @@ class TransferFunctionFit:
         scipy.signal.TransferFunction
             Continuous-time transfer function in s [rad/s].
         """
+        from scipy import signal as sps     # imported on use: a second to import
         return sps.TransferFunction(self.numerator, self.denominator)
 
 

@@ -20,7 +20,6 @@ from typing import Optional, Sequence, Union
 
 import numpy as np
 from scipy import fft as spfft
-from scipy import signal as sps
 
 # Samples of one chunk, all channels together [bytes]. On the project's 2-core machine (4 MiB
 # L2 per core, shared with other work) 512 KiB and 1 MiB were within the run-to-run noise of
@@ -139,6 +138,7 @@ def welch_sums(records: Sequence[np.ndarray], nperseg: int, step: int, n_segment
                             else m[k0:k1, None], out=part[c])
                 part[c] *= window
             elif detrend:
+                from scipy import signal as sps     # linear detrend only
                 np.multiply(sps.detrend(seg, axis=-1, type=detrend), window, out=part[c])
             else:
                 np.multiply(seg, window, out=part[c])

@@ -27,11 +27,10 @@ import csv
 import math
 from pathlib import Path
 import re
-from typing import Any, Dict, List, Optional, Union
+from typing import Any, Dict, List, Optional, Tuple, Union
 
 import numpy as np
 from scipy import io as sio
-from scipy import signal as sps
 import yaml
 
 from emfc_ros.core.model.linear import INPUTS, STATES
@@ -445,11 +444,76 @@ def _matrix(a: np.ndarray) -> List[List[float]]:
     return [[float(v) for v in row] for row in np.atleast_2d(np.asarray(a, dtype=float))]
 
 
+def tf_to_ss(num: np.ndarray, den: np.ndarray
+             ) -> Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """
+    Controllable canonical state space of a proper SISO transfer function.
+
+    What ``scipy.signal.tf2ss`` returns for it, with numpy alone (scipy.signal takes about a
+    second to import, more than the whole report takes to write).
+
+    Parameters
+    ----------
+    num, den : ndarray
+        Coefficients in descending powers of s, ``len(num) <= len(den)``, ``den[0] != 0``.
+
+    Returns
+    -------
+    A, B, C, D : ndarray
+        Shapes (n, n), (n, 1), (1, n), (1, 1), n = ``len(den) - 1``.
+    """
+    den = np.trim_zeros(np.atleast_1d(np.asarray(den, dtype=float)), 'f')
+    num = np.atleast_1d(np.asarray(num, dtype=float)) / den[0]
+    den = den / den[0]
+    k = den.size
+    if num.size > k:
+        raise ValueError('improper transfer function: the numerator has a higher order')
+    num = np.concatenate((np.zeros(k - num.size), num))
+    d = np.array([[num[0]]])
+    if k == 1:
+        return np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 1)), d
+    a = np.vstack((-den[1:][None, :], np.eye(k - 2, k - 1)))
+    b = np.eye(k - 1, 1)
+    c = (num[1:] - num[0] * den[1:])[None, :]
+    return a, b, c, d
+
+
+def ss_to_tf(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray, input: int = 0
+             ) -> Tuple[np.ndarray, np.ndarray]:
+    """
+    Transfer function of one input of a state-space model.
+
+    What ``scipy.signal.ss2tf(a, b, c, d, input=input)`` returns, with numpy alone.
+
+    Parameters
+    ----------
+    a, b, c, d : ndarray
+        State-space matrices, shapes (n, n), (n, m), (p, n), (p, m).
+    input : int
+        The input's column.
+
+    Returns
+    -------
+    num : ndarray, shape (p, n + 1)
+        Numerators in descending powers of s, one row per output.
+    den : ndarray, shape (n + 1,)
+        The characteristic polynomial of ``a``.
+    """
+    a, b = np.atleast_2d(np.asarray(a, dtype=float)), np.atleast_2d(np.asarray(b, dtype=float))
+    c, d = np.atleast_2d(np.asarray(c, dtype=float)), np.atleast_2d(np.asarray(d, dtype=float))
+    bj = b[:, input:input + 1]
+    den = np.poly(a)
+    num = np.zeros((c.shape[0], den.size))
+    for k in range(c.shape[0]):
+        num[k] = np.poly(a - bj @ c[k:k + 1, :]) + (d[k, input] - 1.0) * den
+    return num, den
+
+
 def _tf_model(frf: Any) -> Dict[str, Any]:
     c = frf.fit.chosen
     num = np.asarray(c.numerator, dtype=float)
     den = np.asarray(c.denominator, dtype=float)
-    a, b, cc, d = sps.tf2ss(num, den)
+    a, b, cc, d = tf_to_ss(num, den)
     return {
         'name': frf.name, 'section': frf.section, 'input': f'{INPUT_TEXT[frf.input]} [N]',
         'output': f'{OUTPUT_TEXT} [m]', 'unit': 'm/N', 'variable': 's [rad/s]',
@@ -475,7 +539,7 @@ def _greybox_model(g: Any) -> Dict[str, Any]:
     c, d = np.asarray(lin.C, dtype=float), np.asarray(lin.D, dtype=float)
     nums, den = [], None
     for j, name in enumerate(INPUTS):
-        num, den = sps.ss2tf(a, b, c, d, input=j)
+        num, den = ss_to_tf(a, b, c, d, input=j)
         nums.append({'input': f'{INPUT_TEXT[name]} [N]',
                      'numerator_s_rad_per_s': [float(v) for v in np.ravel(num)]})
     return {
