@@ -914,6 +914,11 @@ class PlantSimulatorNode(Node):
         if self._sim is None or self._error:
             level = DiagnosticStatus.ERROR
         message = self._error or ('excitation defects' if defects else 'ok')
+        if not self._error and not defects and self._flow.timeouts:
+            level = DiagnosticStatus.WARN
+            message = (f'{self._flow.timeouts} wait(s) for acknowledgements by the subscribers '
+                       'ended at the 2 s bound: a subscriber stalled or died (the simulation '
+                       'slowed down; a subscriber that fell 100 blocks behind lost blocks)')
         if not self._error and self._excitation_timer is not None:
             message = (f'waiting for {self._min_subscribers} subscription(s) to measurements '
                        'before subscribing to the excitation')

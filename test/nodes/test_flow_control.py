@@ -12,16 +12,19 @@ import subprocess
 import sys
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+import numpy as np
 import pytest
 import rclpy
+from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray
 from test_recorder_node import Publisher, REPO, signal_samples
 import yaml
 
 from emfc_ros.core.bag import read_metadata, read_streams
-from emfc_ros.nodes.convert import BLOCK_QOS
+from emfc_ros.nodes.convert import BLOCK_QOS, block_to_msg
 from emfc_ros.nodes.flow_control import (AckFlowControl, BATCH_BYTES, EVERY_BLOCKS,
                                          MAX_BLOCKS)
+from emfc_ros.nodes.plant_simulator import PlantSimulatorNode
 import ros_harness
 
 TIMEOUT_S = 15.0
@@ -33,18 +36,31 @@ STALLED_BLOCKS = 300
 
 
 class Diagnostics:
-    """The recorder's last diagnostics (level, values)."""
+    """The last diagnostics (level, message, values) of the status whose name holds ``part``."""
 
-    def __init__(self, node):
+    def __init__(self, node, part='recorder'):
+        self.part = part
         self.level = None
+        self.message = ''
         self.values = {}
         node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 100)
 
     def _on_diag(self, msg):
         for status in msg.status:
-            if 'recorder' in status.name:
+            if self.part in status.name:
+                self.message = status.message
                 self.level = status.level
                 self.values = {kv.key: kv.value for kv in status.values}
+
+
+def _start_recorder(tmp_path, processes, bag, topics):
+    code = ('import runpy, sys\n'
+            'sys.argv = ["recorder"] + sys.argv[1:]\n'
+            'runpy.run_module("emfc_ros.nodes.recorder", run_name="__main__")\n')
+    return processes.start(
+        [sys.executable, '-c', code, '--ros-args', '-p', f'output:={bag}',
+         '-p', 'discovery_period_s:=0.05', '-p', f'topics:=[{topics}]'],
+        cwd=REPO, env={'ROS_LOG_DIR': str(tmp_path / 'roslog')})
 
 
 def _stalled_run(tmp_path, processes, executor, ros_context, flow_control):
@@ -55,14 +71,7 @@ def _stalled_run(tmp_path, processes, executor, ros_context, flow_control):
     metadata, the blocks published and the flow control of the publisher.
     """
     bag = tmp_path / 'stalled'
-    code = ('import runpy, sys\n'
-            'sys.argv = ["recorder"] + sys.argv[1:]\n'
-            'runpy.run_module("emfc_ros.nodes.recorder", run_name="__main__")\n')
-    proc = processes.start(
-        [sys.executable, '-c', code, '--ros-args', '-p', f'output:={bag}',
-         '-p', 'discovery_period_s:=0.05',
-         '-p', 'topics:=[/t/excitation,/t/excitation/description]'],
-        cwd=REPO, env={'ROS_LOG_DIR': str(tmp_path / 'roslog')})
+    proc = _start_recorder(tmp_path, processes, bag, '/t/excitation,/t/excitation/description')
     pub = Publisher(ros_context, block=BLOCK)
     executor.add_node(pub.node)
     diag = Diagnostics(pub.node)
@@ -149,3 +158,48 @@ def test_batches_are_large_enough_for_a_prompt_acknowledgement(
         assert MAX_BLOCKS * 2 <= BLOCK_QOS.depth
     finally:
         node.destroy_node()
+
+
+@pytest.mark.slow
+def test_the_owner_plant_waits_for_a_stalled_recorder_and_says_so(
+        tmp_path, processes, executor, ros_context):
+    # The plant in owner mode (in this process), fed 100 blocks at once, while the recorder
+    # (another process) is stopped for 3 s: the first wait ends at its 2 s bound (counted,
+    # WARN), the next returns when the recorder goes on, and the recorder loses nothing.
+    bag = tmp_path / 'plant'
+    proc = _start_recorder(tmp_path, processes, bag, '/flow/measurements')
+    plant = PlantSimulatorNode(context=ros_context, namespace='/flow', parameter_overrides=[
+        Parameter('time_mode', value='owner'), Parameter('publish_groups', value=False)])
+    feeder = rclpy.create_node('feeder', namespace='/flow', context=ros_context)
+    pub = feeder.create_publisher(Float64MultiArray, 'excitation', BLOCK_QOS)
+    plant_diag = Diagnostics(feeder, 'plant_simulator')
+    recorder_diag = Diagnostics(feeder, 'recorder')
+    for node in (plant, feeder):
+        executor.add_node(node)
+    assert ros_harness.spin_until(
+        executor, lambda: pub.get_subscription_count() >= 1
+        and plant.count_subscribers('/flow/measurements') >= 1, TIMEOUT_S), proc.output()
+    hold = plant._sim.hold_setpoints_V[:, None]
+    n_blocks = 100
+    os.kill(proc.pid, signal.SIGSTOP)
+    resume = subprocess.Popen(['sh', '-c', f'sleep 3; kill -CONT {proc.pid}'])
+    try:
+        for k in range(n_blocks):
+            pub.publish(block_to_msg(k * 1000, 10000.0, 1, np.repeat(hold, 1000, axis=1)))
+        assert ros_harness.spin_until(
+            executor, lambda: int(plant_diag.values.get('blocks_out', 0)) >= n_blocks
+            and int(recorder_diag.values.get('messages /flow/measurements', 0)) >= n_blocks,
+            TIMEOUT_S + 10.0), (plant_diag.values, recorder_diag.values, proc.output())
+    finally:
+        assert resume.wait(timeout=TIMEOUT_S) == 0
+    values = plant_diag.values
+    print('plant flow control:', {k: v for k, v in values.items() if k.startswith('ack')})
+    assert int(values['ack_waits']) == n_blocks // EVERY_BLOCKS
+    assert int(values['ack_timeouts']) >= 1
+    assert plant_diag.level == DiagnosticStatus.WARN and 'acknowledgements' in \
+        plant_diag.message, plant_diag.message
+    assert 'lost_messages' not in recorder_diag.values
+    assert proc.stop() == 0, proc.output()
+    stream = read_streams(bag)['/flow/measurements']
+    assert stream.first_sample_index == 0 and stream.n_samples == n_blocks * 1000
+    assert stream.gaps == []
