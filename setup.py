@@ -39,7 +39,7 @@ COMMANDS = {
     'emfc-compile-kernels': 'emfc_ros.cli.compile_kernels:main',
     'emfc-generate': 'emfc_ros.cli.generate:main',
     'emfc-demo': 'emfc_ros.cli.demo:main',
-    'emfc-experiment': 'emfc_ros.cli.experiment:main',
+    'emfc-experiment': 'emfc_ros.cli.experiment:console_main',
     'emfc-identify': 'emfc_ros.cli.identify:main',
     'emfc-device-emulator': 'emfc_ros.cli.device_emulator:main',
     'emfc-model-summary': 'emfc_ros.cli.model_summary:main',

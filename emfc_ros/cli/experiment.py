@@ -20,9 +20,11 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 from pathlib import Path
 import signal
 import sys
+import threading
 import time
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
@@ -39,6 +41,18 @@ START_WAIT_S = 30.0
 #: Closing the recording: the bag must have stopped growing this long once every counted
 #: stream is complete [s].
 QUIET_S = 0.1
+#: Excitation blocks the generator keeps in flight to the simulated plant, per executor. The
+#: recorder stamps a message with its node's simulated time when it takes it, and rclpy's
+#: time source keeps only the newest /clock message (depth 1). The events executor runs the
+#: callbacks in arrival order: with 8 blocks in flight the plant answered all 8 before the
+#: recorder took its /clock, and the bag stamped blocks up to 0.7 s late (measured). One
+#: block in flight stamps each block with its own time (the experiment phase took 0.75 s
+#: against 0.6 s with 8); the wait-set executor takes one message per subscription and
+#: cycle, which kept its 8-block window within one block.
+SIMULATOR_WINDOW_BLOCKS = {'events': 1, 'single_threaded': 8}
+#: Longest wait at the end of a run for the warm-up thread (:func:`warm_up`) [s]: it may still
+#: be compiling a kernel (an empty numba cache) when a run fails early.
+WARM_UP_JOIN_S = 120.0
 
 
 class Phases:
@@ -344,6 +358,43 @@ def fault_message(faults, offset: Optional[int], total: int, rate: float, bag: P
             'to here, with the faults in its custom data (emfc_ros.faults)')
 
 
+def make_executor(kind: str) -> Tuple[Any, str]:
+    """
+    The runner's executor (``run.executor``).
+
+    ``'events'``: rclpy's EventsExecutor (``rclpy.experimental``, in Jazzy since rclpy 7.1.4),
+    which waits for DDS events in C++ and runs the callbacks in arrival order; the
+    wait-set SingleThreadedExecutor rebuilds its wait set (every node's subscriptions,
+    services, timers and QoS event handlers) for each callback, which took half of the
+    experiment phase of the shipped plan (490 blocks: 1.6-2.0 s against 0.8-1.0 s, measured
+    by ``tools/bench.sh bench_experiment``). Without it (an older rclpy) the wait-set executor
+    is used and the runner says so.
+
+    Parameters
+    ----------
+    kind : str
+        ``'events'`` or ``'single_threaded'``.
+
+    Returns
+    -------
+    executor : rclpy.executors.Executor
+        The executor (``add_node``, ``spin_once``, ``shutdown``).
+    kind : str
+        The kind it is (``'single_threaded'`` after a fallback).
+    """
+    from rclpy.executors import SingleThreadedExecutor
+
+    if kind == 'events':
+        try:
+            from rclpy.experimental import EventsExecutor
+        except ImportError:
+            _progress('  rclpy has no EventsExecutor (rclpy < 7.1.4): the wait-set '
+                      'SingleThreadedExecutor runs the nodes (run.executor: single_threaded)')
+        else:
+            return EventsExecutor(), 'events'
+    return SingleThreadedExecutor(), 'single_threaded'
+
+
 def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = None,
            live: Optional[dict] = None) -> dict:
     """
@@ -378,7 +429,6 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
         On Ctrl-C (the bag is closed before it propagates).
     """
     import rclpy
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.logging import LoggingSeverity
     from rclpy.parameter import Parameter
     from rclpy.signals import SignalHandlerOptions
@@ -426,7 +476,9 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     nodes = []
     recorder = None
+    executor = None
     try:
+        executor, executor_kind = make_executor(plan.executor)
         if on_bridge:
             from emfc_ros.nodes.daq_bridge import DaqBridgeNode
             address = None
@@ -485,7 +537,8 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
             Parameter('experiment_file', value=str(experiment_path)),
             Parameter('pacing', value=pacing),
             Parameter('block_size', value=int(plan.block_size)),
-            Parameter('window_blocks', value=plan.bridge.window_blocks if on_bridge else 8),
+            Parameter('window_blocks', value=plan.bridge.window_blocks if on_bridge else
+                      SIMULATOR_WINDOW_BLOCKS[executor_kind]),
             Parameter('lead_blocks', value=plan.bridge.lead_blocks if on_bridge else 2),
             Parameter('autostart', value=False)])
         nodes.append(generator)
@@ -541,7 +594,6 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
         # of 138 ms median against 0.47 ms single-threaded). The recorder writes to disk in
         # its own thread (the bridge reads the device in its own), so nothing here blocks
         # the executor.
-        executor = SingleThreadedExecutor()
         for node in nodes:
             executor.add_node(node)
 
@@ -715,6 +767,8 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
         if ctrl_c.requested and recorder is not None:
             # The runner's one line reports the bag; the recorder's own log line would repeat it.
             recorder.get_logger().set_level(LoggingSeverity.WARN)
+        if executor is not None:
+            executor.shutdown()         # no callback runs while the nodes go
         for node in nodes:
             node.destroy_node()         # the recorder closes its bag here
         rclpy.try_shutdown()
@@ -850,6 +904,50 @@ def _run_pipeline(plan: RunPlan, info: dict, streams: dict, out: Path,
             '`summary.md`).', ''] + (folder / 'summary.md').read_text().splitlines()
 
 
+def warm_up(plan: RunPlan, identify: bool) -> threading.Thread:
+    """
+    Import and load, in a background thread, what the run needs after setting up its nodes.
+
+    scipy.optimize (the balancing load and the plant's hold point, then the identification),
+    the simulator's compiled kernel (numba's cache, about 0.5 s to load), the identification
+    modules and the grey-box fit's kernel. The main thread meanwhile imports rclpy, creates
+    the nodes and waits for discovery; whatever the thread has not finished when the main
+    thread gets there, the main thread waits for (the import system's and numba's locks), so
+    the run does the same work in the same order either way. A failure here is ignored: the
+    same import or load fails again where the run needs it, and is reported there.
+
+    Parameters
+    ----------
+    plan : RunPlan
+        The plan (its target and whether it identifies).
+    identify : bool
+        Whether this run identifies (``--no-identify`` not given).
+
+    Returns
+    -------
+    threading.Thread
+        The started daemon thread.
+    """
+    def load() -> None:
+        try:
+            import scipy.optimize  # noqa: F401
+            from emfc_ros.core import kernels
+            if plan.target == 'simulator':
+                kernels.prepare(['simulator chain'])
+            if identify and plan.identification.get('enabled', True):
+                import emfc_ros.core.bag  # noqa: F401
+                import emfc_ros.core.ident.from_bag  # noqa: F401
+                import emfc_ros.core.ident.pipeline  # noqa: F401
+                import emfc_ros.core.report  # noqa: F401
+                kernels.prepare(['modal filter (grey-box Jacobian)'])
+        except Exception:               # noqa: B902 (reported where the run needs it)
+            pass
+
+    thread = threading.Thread(target=load, name='warm-up', daemon=True)
+    thread.start()
+    return thread
+
+
 def plot_pool(plan: RunPlan) -> Optional[Any]:
     """
     Worker processes for the report's plots, started before identifying (None: no plots).
@@ -976,6 +1074,7 @@ def _run(args: argparse.Namespace, ctrl_c: CtrlC) -> int:
     # and the identification's modules on the other core while this process imports ROS and
     # sets up the nodes; the workers are forked from it, ready before the first plot.
     pool = None if args.no_identify else plot_pool(plan)
+    warming = warm_up(plan, not args.no_identify)
     try:
         info = record(plan, out, phases, ctrl_c, live)
         live['recorded'] = True
@@ -996,6 +1095,7 @@ def _run(args: argparse.Namespace, ctrl_c: CtrlC) -> int:
     finally:
         if pool is not None:
             pool.close()
+        warming.join(WARM_UP_JOIN_S)    # not left importing while the interpreter ends
     phases.stop()
     wall = time.monotonic() - t0
     timing = dict(phases.seconds, total=wall)
@@ -1029,5 +1129,21 @@ def _run(args: argparse.Namespace, ctrl_c: CtrlC) -> int:
     return 0
 
 
+def console_main() -> None:
+    """
+    The ``emfc-experiment`` command: :func:`main`, then the process ends at once.
+
+    Everything the run writes is closed by then (the bag by its recorder, every other file as
+    it is written, the plot workers stopped); the interpreter's own teardown of the loaded
+    libraries (numba's LLVM, scipy, the DDS middleware) took 0.4-0.6 s after the last line
+    was printed (measured against :func:`os._exit`), so the command flushes its output and
+    leaves with :func:`os._exit`. Called as a function (:func:`main`) nothing of this applies.
+    """
+    code = main()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
 if __name__ == '__main__':
-    raise SystemExit(main())
+    console_main()

@@ -27,7 +27,10 @@ from emfc_ros.core.signals.spec import find_experiment_mapping
 
 TARGETS = ('simulator', 'bridge')
 RUN_KEYS = ('name', 'target', 'namespace', 'experiment_files', 'block_size', 'simulator',
-            'bridge', 'recording', 'identification', 'timeout_s')
+            'bridge', 'recording', 'identification', 'timeout_s', 'executor')
+#: The runner's executors (``run.executor``): rclpy's EventsExecutor (rclpy >= 7.1.4, Jazzy;
+#: the default) or its wait-set SingleThreadedExecutor.
+EXECUTORS = ('events', 'single_threaded')
 BRIDGE_KEYS = ('backend', 'parameters_file', 'parameters', 'start_emulator', 'emulator',
                'balance_file', 'load_mass_kg', 'load_changer_coupled', 'pacing',
                'window_blocks', 'lead_blocks', 'settle_s')
@@ -95,8 +98,9 @@ def runner_state_wall_rate_Hz(simulator: SimulatorPlan, sample_rate_Hz: float,
     """
     The plant's wall-rate limit on ``joint_states`` in a run of the experiment runner.
 
-    The runner's nodes share one single-threaded executor: per cycle the plant answers at
-    most one excitation block and the recorder takes at most one message per topic. At most
+    The runner's nodes share one thread of one executor: per cycle (of the wait-set executor)
+    or in arrival order (of the events executor) the plant answers one excitation block at a
+    time and the recorder takes each message before the next block is simulated. At most
     one joint state per block therefore always keeps up, at any speed, and needs no limit
     (the default, 10 Hz at 1000-sample blocks of 10 kHz: no state decimated, none lost);
     more states per block are limited to the plant's default 500 Hz of wall time, the rate
@@ -254,6 +258,8 @@ class RunPlan:
         The file the plan came from.
     bridge : BridgePlan or None
         The daq_bridge side (target ``'bridge'`` only).
+    executor : str
+        The runner's executor, one of :data:`EXECUTORS`.
     """
 
     name: str
@@ -267,6 +273,7 @@ class RunPlan:
     timeout_s: float
     source: Optional[Path] = None
     bridge: Optional[BridgePlan] = None
+    executor: str = 'events'
 
 
 def merge_experiments(mappings: List[Mapping[str, Any]], names: List[str]) -> Dict[str, Any]:
@@ -412,6 +419,7 @@ def plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
     check_identification(identification, experiment['sections'], f'{path}.identification')
     block_size = get_int(cfg, 'block_size', path, default=1000, minimum=1, maximum=1_000_000)
     timeout_s = get_float(cfg, 'timeout_s', path, default=600.0, minimum=1.0)
+    executor = get_str(cfg, 'executor', path, default='events', choices=EXECUTORS)
     bridge = None
     if target == 'bridge':
         bridge = bridge_plan_from_mapping(
@@ -428,7 +436,7 @@ def plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
         experiment=experiment,
         block_size=block_size,
         simulator=simulator, recording=recording, identification=identification,
-        timeout_s=timeout_s, source=source, bridge=bridge)
+        timeout_s=timeout_s, source=source, bridge=bridge, executor=executor)
 
 
 def _resolve(name: str, base_dir: Path) -> Path:

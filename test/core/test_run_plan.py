@@ -23,6 +23,7 @@ def test_shipped_default_plan_loads_and_merges_six_sections():
     assert plan.simulator.load_mass_kg is None            # 'balance'
     assert plan.simulator.balance_file.name == 'balance_default.yaml'
     assert 'measurements' in plan.recording.topics
+    assert plan.executor == 'events'
 
 
 def test_flatten_inverts_unflatten():
@@ -50,6 +51,7 @@ def test_merging_refuses_different_rates_and_repeated_sections():
     ({'recording': {'flush_period_s': 0.0}}, 'run.recording.flush_period_s'),
     ({'experiment_files': ['missing.yaml']}, 'run.experiment_files[0]'),
     ({'colour': 'red'}, 'run.colour'),
+    ({'executor': 'multi_threaded'}, 'run.executor'),
 ])
 def test_bad_plans_are_refused_naming_the_key(tmp_path, change, key):
     cfg = yaml.safe_load(config_file('experiment_default.yaml').read_text())['run']

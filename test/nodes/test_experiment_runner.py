@@ -305,6 +305,27 @@ def test_the_quick_plan_as_typed(tmp_path):
         read_metadata(out / 'bag')['custom_data'][CUSTOM_DATA_KEY]))) == []
 
 
+@pytest.mark.slow
+def test_the_wait_set_executor_still_runs_the_job(tmp_path):
+    """``executor: single_threaded`` (an rclpy without the EventsExecutor): all recorded."""
+    plan = tmp_path / 'plan.yaml'
+    plan.write_text(yaml.safe_dump({'run': {
+        'name': 'wait_set', 'executor': 'single_threaded',
+        'experiment_files': [str(short_experiment(tmp_path / 'e.yaml', 1.0))],
+        'simulator': {'balance_file': str(config_file('balance_default.yaml'))}}}))
+    out = tmp_path / 'run'
+    result = subprocess.run([_runner(), str(plan), '-o', str(out), '--no-identify'],
+                            capture_output=True, text=True, timeout=300,
+                            env=ros_harness.child_environment(), cwd=tmp_path)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    counts = from_mapping(yaml.safe_load(
+        read_metadata(out / 'bag')['custom_data'][CUSTOM_DATA_KEY]))
+    assert problems(counts) == []
+    measured = next(c for c in counts if c.topic == '/emfc/measurements')
+    assert measured.recorded == measured.due == 40         # 4 sections of 1 s, 1000-sample blocks
+    assert read_streams(out / 'bag')['/emfc/measurements'].n_samples == 40000
+
+
 def test_bad_plan_is_refused_with_the_key(tmp_path):
     plan = tmp_path / 'plan.yaml'
     plan.write_text('run:\n  experiment_files: [nothing.yaml]\n  target: simulator\n')

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 from typing import Optional, Sequence, Tuple
 
 import numpy as np
-from scipy import linalg
 
 from emfc_ros.core.model.mechanics import (_coupling, accelerations, damping_matrix,
                                            input_matrix, lever_position_m, mass_matrix,
@@ -128,6 +127,7 @@ class LinearModel:
         tuple of Root
             Sorted by frequency, then imaginary part.
         """
+        from scipy import linalg
         return _sorted_roots(linalg.eigvals(self.A))
 
     def zeros(self, input: str = 'coil') -> Tuple[Root, ...]:
@@ -148,6 +148,7 @@ class LinearModel:
         tuple of Root
             Sorted by frequency, then imaginary part.
         """
+        from scipy import linalg
         j = _input_index(input)
         n = self.A.shape[0]
         pencil = np.block([[self.A, self.B[:, [j]]], [self.C, self.D[:, [j]]]])

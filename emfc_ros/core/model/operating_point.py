@@ -11,7 +11,6 @@ from dataclasses import dataclass, replace
 from typing import Optional, Sequence
 
 import numpy as np
-from scipy import optimize
 
 from emfc_ros.core.model.load import loaded
 from emfc_ros.core.model.mechanics import (generalised_forces, gravity_vector, input_matrix,
@@ -92,6 +91,7 @@ def _prepare(p: MechanicalParameters, load_mass_kg: float, load_changer_coupled:
 
 
 def _solve(fun, jac, x0: np.ndarray, what: str) -> np.ndarray:
+    from scipy import optimize      # here: importing scipy.optimize takes about 0.5 s
     sol = optimize.root(fun, x0, jac=jac, method='hybr', options={'xtol': _XTOL})
     x = sol.x
     # One Newton polish step: hybr stops at its relative tolerance, Newton reaches round-off.

@@ -7,8 +7,6 @@ rather than by a coil offset; this finds that mass for a parameter set.
 
 from __future__ import annotations
 
-from scipy.optimize import brentq
-
 from emfc_ros.core.model.parameters import BalanceParameters
 from emfc_ros.core.sim.hold_point import hold_point
 
@@ -55,4 +53,5 @@ def balancing_load_mass_kg(params: BalanceParameters, load_changer_coupled: bool
     if low * high > 0:
         raise ValueError(f'no pan load from 0 to {upper_kg} kg balances the lever at zero coil '
                          f'current (hold setpoints {low:.4g} V and {high:.4g} V)')
+    from scipy.optimize import brentq   # here: importing scipy.optimize takes about 0.5 s
     return float(brentq(coil_hold_V, 0.0, upper_kg, xtol=1e-12))
