@@ -86,21 +86,54 @@ def test_plots_by_the_worker_pool_are_the_report_s_plots(tmp_path):
         config_file('quick_trajectory.yaml')))
     options = rec.options(('coil_chirp', 'load_changer_chirp'))
     options.update({'static': {'enabled': False}, 'frf': {'two_input_sections': []}})
+    steps = []
+
+    def step_done(step, partial):
+        steps.append(step)
+        pool.submit_step(step, partial, tmp_path / 'pool')
+
     with PlotPool() as pool:
-        res = identify(rec.recording, rec.section_table, options,
-                       on_step=lambda step, partial: pool.submit_step(step, partial,
-                                                                      tmp_path / 'pool'))
+        res = identify(rec.recording, rec.section_table, options, on_step=step_done)
         by_pool = write_report(res, tmp_path / 'pool', pool=pool)
         assert pool.errors == []
+    # the grey-box's figures were queued when its time-domain fit ended
+    assert steps == ['frf', 'tf_fit', 'greybox_fit', 'greybox']
     in_process = write_report(res, tmp_path / 'here')
     names = [p.name for p in in_process['plots']]
     assert [p.name for p in by_pool['plots']] == names
+    # and they are the final result's figures, pixel for pixel
+    for path in by_pool['plots']:
+        assert path.read_bytes() == (tmp_path / 'here' / path.name).read_bytes(), path.name
     assert {'bode_coil_chirp.coil.png', 'coherence_load_changer_chirp.pan.png',
             'time_coil_chirp.png', 'resid_load_changer_chirp.png', 'pole_zero.png'} <= set(names)
     for path in by_pool['plots']:
         assert path.read_bytes()[:4] == b'\x89PNG' and path.stat().st_size > 10000
     assert (tmp_path / 'pool' / 'summary.md').read_text().count('.png') == \
         (tmp_path / 'here' / 'summary.md').read_text().count('.png')
+
+
+def test_a_figure_queued_again_with_another_key_is_drawn_again(tmp_path):
+    """Same path and key: drawn once; another key: redrawn after the first, and it stays."""
+    import dataclasses
+
+    from emfc_ros.core.report.background import draw, PlotJob, PlotPool
+
+    frf = small_result().frfs[0]
+    other = dataclasses.replace(frf, model_response=2.0 * frf.frd.response)
+    path = tmp_path / 'pool' / 'bode.png'
+    with PlotPool() as pool:
+        pool.wait([])                   # the workers have started
+        pool.submit([PlotJob(path, 'bode', (frf,), '')])
+        pool.submit([PlotJob(path, 'bode', (frf,), '')])        # the same: not queued again
+        first = pool._futures[path]
+        pool.submit([PlotJob(path, 'bode', (other,), 'model 2')])
+        assert pool._futures[path] is not first
+        assert pool.wait([path]) == [path]
+        assert first.done() and pool.errors == []
+    draw(PlotJob(tmp_path / 'first.png', 'bode', (frf,)))
+    draw(PlotJob(tmp_path / 'second.png', 'bode', (other,)))
+    assert (tmp_path / 'first.png').read_bytes() != (tmp_path / 'second.png').read_bytes()
+    assert path.read_bytes() == (tmp_path / 'second.png').read_bytes()
 
 
 def test_envelope_keeps_each_column_s_extremes_in_order():

@@ -454,7 +454,8 @@ def noise_weights(model: BalanceGreyboxModel, values: Dict[str, float],
 
 
 def residual_tests(model: BalanceGreyboxModel, fit: Any, data: Sequence[Any],
-                   setting: Setting, max_lag: int = 25) -> Tuple[Any, ...]:
+                   setting: Setting, max_lag: int = 25,
+                   record: Optional[np.ndarray] = None) -> Tuple[Any, ...]:
     """
     Whiteness and input-correlation tests of the final residuals, pre-whitened.
 
@@ -486,6 +487,8 @@ def residual_tests(model: BalanceGreyboxModel, fit: Any, data: Sequence[Any],
         The configuration.
     max_lag : int
         Largest lag tested [samples].
+    record : ndarray, optional
+        The simulated record at ``fit.parameters`` when the caller has it.
 
     Returns
     -------
@@ -493,7 +496,8 @@ def residual_tests(model: BalanceGreyboxModel, fit: Any, data: Sequence[Any],
         ``fit.sections`` with the tests replaced (``residual_tested`` says which residual).
     """
     shapes, bases = noise_shapes(model, fit.parameters, data, setting)
-    record = model.simulate_record(fit.parameters)
+    if record is None:
+        record = model.simulate_record(fit.parameters)
     errors = [np.asarray(sec.outputs) - record[model.offset(sec.inputs):][:len(sec.outputs)]
               for sec in data]
     weights = []
@@ -655,7 +659,8 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
                 frf_jobs: Sequence[Tuple[str, int, int, Sequence[str]]],
                 modes: Sequence[Tuple[float, float, float]],
                 anti_resonance: Optional[Tuple[float, float, float]], gcfg: Any,
-                band_Hz: Tuple[float, float], hold: str, report: Progress
+                band_Hz: Tuple[float, float], hold: str, report: Progress,
+                on_fit: Optional[Callable[[Any], None]] = None
                 ) -> Tuple[Optional[BalanceGreyboxResult], Verdict]:
     """
     The whole grey-box identification (see the module docstring).
@@ -680,6 +685,9 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
         DAC hold.
     report : callable
         Progress.
+    on_fit : callable, optional
+        Called once the time-domain fit has ended, before its residual tests and checks,
+        with a :class:`FittedSignals` (e.g. to draw the fit's figures meanwhile).
 
     Returns
     -------
@@ -774,8 +782,17 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
     except (IdentificationError, ValueError, RuntimeError) as exc:
         verdict.failures.append(f'greybox: {exc}')
         return None, verdict
+    fitted = model.balance(fit.parameters)
+    lin = linearise(loaded(fitted.mechanics, setting.load_mass_kg,
+                           setting.load_changer_coupled))
+    record = model.simulate_record(fit.parameters)
+    signals = FittedSignals(fit, lin, *section_signals(channels, sections, record,
+                                                       setting.sample_rate_Hz))
+    if on_fit is not None:
+        on_fit(signals)
     if gcfg.noise_weighting and n_end >= 2:
-        fit = dataclasses.replace(fit, sections=residual_tests(model, fit, data, setting))
+        fit = dataclasses.replace(fit, sections=residual_tests(model, fit, data, setting,
+                                                               record=record))
     check(fit, specs, fd, verdict)
     derived = derived_quantities(model, fit, setting)
     check_masses(derived, setting, gcfg.mass_relative_uncertainty, verdict)
@@ -801,20 +818,72 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
     if all(n in free for n in MASS_MATRIX_NAMES):
         for n in MASS_COORDINATES:
             sources[n] = 'identified (time-domain fit, through the mass-matrix entries)'
-    fitted = model.balance(fit.parameters)
     if fit_offset:
         sources['F_off_N'] = 'identified (time-domain fit, through the rest position)'
     parameters = {n: float(getattr(fitted.mechanics, n))
                   for n in fitted.mechanics.__dataclass_fields__}
-    lin = linearise(loaded(fitted.mechanics, setting.load_mass_kg,
-                           setting.load_changer_coupled))
     out = BalanceGreyboxResult(fit, {s.name: s.initial for s in specs}, lin, parameters,
                                derived, fd, choice, sources, time_domain)
-    record = model.simulate_record(fit.parameters)
-    fs = setting.sample_rate_Hz
+    out.time_s.update(signals.time_s)
+    out.measured_m.update(signals.measured_m)
+    out.simulated_m.update(signals.simulated_m)
+    return out, verdict
+
+
+@dataclasses.dataclass
+class FittedSignals:
+    """
+    What the time-domain fit gives for figures, before its residual tests and checks.
+
+    Attributes
+    ----------
+    fit : GreyboxResult
+        The time-domain fit (its sections' fit percentages are final; the residual tests
+        replace only their whiteness fields).
+    linear_model : LinearModel
+        The fitted mechanics linearised at rest.
+    time_s, measured_m, simulated_m : dict of str to ndarray
+        Per section: time from the section start [s], measured and simulated lever-end
+        position [m].
+    inputs_V : dict of str to ndarray
+        Per section the setpoints ``(n, 2)`` [V] (filled by the pipeline).
+    """
+
+    fit: Any
+    linear_model: Any
+    time_s: Dict[str, np.ndarray]
+    measured_m: Dict[str, np.ndarray]
+    simulated_m: Dict[str, np.ndarray]
+    inputs_V: Dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+
+
+def section_signals(channels: Mapping[str, np.ndarray], sections: Sequence[Tuple[str, int, int]],
+                    record: np.ndarray, sample_rate_Hz: float
+                    ) -> Tuple[Dict[str, np.ndarray], Dict[str, np.ndarray],
+                               Dict[str, np.ndarray]]:
+    """
+    Per section: time axis, measured and simulated position.
+
+    Parameters
+    ----------
+    channels : mapping of str to ndarray
+        The recording (``position_m``).
+    sections : sequence of (name, first_sample_index, n_samples)
+        The fitted sections.
+    record : ndarray
+        The simulated position over the record [m].
+    sample_rate_Hz : float
+        Sample rate [Hz].
+
+    Returns
+    -------
+    time_s, measured_m, simulated_m : dict of str to ndarray
+        By section name.
+    """
+    time_s, measured, simulated = {}, {}, {}
     for name, first, n in sections:
         sl = slice(first, first + n)
-        out.time_s[name] = np.arange(n) / fs
-        out.measured_m[name] = np.asarray(channels['position_m'][sl])
-        out.simulated_m[name] = record[sl]
-    return out, verdict
+        time_s[name] = np.arange(n) / sample_rate_Hz
+        measured[name] = np.asarray(channels['position_m'][sl])
+        simulated[name] = record[sl]
+    return time_s, measured, simulated

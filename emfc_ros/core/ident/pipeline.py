@@ -22,9 +22,11 @@ serialises to plain data with :meth:`IdentificationResult.to_dict` (every key wi
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 import math
 import time
+from types import SimpleNamespace
 from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 import warnings
 
@@ -293,7 +295,11 @@ def identify(recording: Any, experiment_sections: Sequence[Any],
     on_step : callable, optional
         Called as ``on_step(step, result)`` after each step (``'frf'``, ``'tf_fit'``,
         ``'static'``, ``'greybox'``) with the result so far, e.g. to draw its plots while the
-        next step runs (:class:`~emfc_ros.core.report.background.PlotPool`).
+        next step runs (:class:`~emfc_ros.core.report.background.PlotPool`); and as
+        ``on_step('greybox_fit', view)`` once the grey-box's time-domain fit has ended, before
+        its residual tests and checks, with ``view.frfs`` (copies carrying the model's
+        responses) and ``view.greybox`` (a
+        :class:`~emfc_ros.core.ident.balance_fit.FittedSignals`).
 
     Returns
     -------
@@ -351,7 +357,7 @@ def identify(recording: Any, experiment_sections: Sequence[Any],
         done('static', result)
     if cfg.greybox.enabled:
         start = time.perf_counter()
-        _greybox_step(result, channels, spans, report)
+        _greybox_step(result, channels, spans, report, done)
         result.timings_s['greybox'] = time.perf_counter() - start
         done('greybox', result)
     report('done', 1.0, f'identification finished with {len(result.warnings)} warning(s)')
@@ -699,7 +705,8 @@ def _static_step(result: IdentificationResult, channels: Mapping[str, np.ndarray
 
 @with_single_blas_thread
 def _greybox_step(result: IdentificationResult, channels: Mapping[str, np.ndarray],
-                  spans: Sequence[Span], report: Progress) -> None:
+                  spans: Sequence[Span], report: Progress,
+                  done: Optional[Callable[[str, Any], None]] = None) -> None:
     cfg = result.config
     gcfg = cfg.greybox
     # Default: every section but the static staircases, which drive the lever to its stops.
@@ -721,21 +728,38 @@ def _greybox_step(result: IdentificationResult, channels: Mapping[str, np.ndarra
     modes, anti = modal_features(result)
     setting = Setting(cfg.balance.with_mechanics(**gcfg.initial), cfg.load_mass_kg,
                       cfg.load_changer_coupled, result.sample_rate_Hz)
+    responses: Dict[str, np.ndarray] = {}
+
+    def inputs(signals: Any) -> None:
+        for s in chosen:
+            if s.name in signals.time_s:
+                signals.inputs_V[s.name] = np.column_stack((
+                    channels['coil_setpoint_V'][s.slice],
+                    channels['load_changer_setpoint_V'][s.slice]))
+
+    def fitted(signals: Any) -> None:
+        # The time-domain fit has ended: its figures are drawn while its residual tests and
+        # checks run (a copy of each FRF carries the model; the result gets it at the end).
+        for r in result.frfs:
+            responses[r.name] = signals.linear_model.frequency_response(
+                r.frd.frequency_Hz, r.input).response_m_per_N
+        inputs(signals)
+        if done is not None:
+            done('greybox_fit', SimpleNamespace(
+                frfs=[dataclasses.replace(r, model_response=responses[r.name])
+                      for r in result.frfs], greybox=signals))
+
     out, verdict = balance_fit.fit_balance(
         setting, channels, [(s.name, s.first_sample_index, s.n_samples) for s in chosen],
         jobs, modes, anti, gcfg, (cfg.frf.frequency_min_Hz, cfg.frf.frequency_max_Hz),
-        cfg.frf.hold_compensation, report)
+        cfg.frf.hold_compensation, report, on_fit=fitted)
     result.warnings.extend(verdict.warnings)
     result.failures.extend(verdict.failures)
     if out is None:
         return
     for r in result.frfs:
-        r.model_response = out.linear_model.frequency_response(
-            r.frd.frequency_Hz, r.input).response_m_per_N
-    for s in chosen:
-        if s.name in out.time_s:
-            out.inputs_V[s.name] = np.column_stack((channels['coil_setpoint_V'][s.slice],
-                                                    channels['load_changer_setpoint_V'][s.slice]))
+        r.model_response = responses[r.name]
+    inputs(out)
     result.greybox = out
     report('greybox', 1.0, f'grey-box fit done ({out.fit.optimizer_evaluations} evaluations)')
 

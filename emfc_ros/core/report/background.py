@@ -49,11 +49,16 @@ class PlotJob:
         ``'bode'``, ``'coherence'``, ``'time'``, ``'resid'``, ``'static'`` or ``'pole_zero'``.
     args : tuple
         The drawing function's data arguments (picklable, slim).
+    key : str
+        What the figure shows beyond its path: the grey-box fit it draws (:func:`fit_key`),
+        empty for figures of the measurement alone. A figure queued again with another key
+        is drawn again (the later file replaces the earlier).
     """
 
     path: Path
     kind: str
     args: Tuple[Any, ...] = field(default_factory=tuple)
+    key: str = ''
 
 
 def _slim_greybox(greybox: Any, section: str) -> SimpleNamespace:
@@ -67,6 +72,26 @@ def _slim_greybox(greybox: Any, section: str) -> SimpleNamespace:
                            fit=fit)
 
 
+def fit_key(greybox: Any) -> str:
+    """
+    The identity of a grey-box fit in figure keys (its parameter values).
+
+    Parameters
+    ----------
+    greybox : BalanceGreyboxResult or None
+        The grey-box result (or the early view of :func:`step_jobs` ``'greybox_fit'``).
+
+    Returns
+    -------
+    str
+        ``''`` without a grey-box result.
+    """
+    if greybox is None:
+        return ''
+    values = sorted((str(k), float(v)) for k, v in greybox.fit.parameters.items())
+    return 'greybox ' + repr(values)
+
+
 def step_jobs(step: str, result: Any, out: Path) -> List[PlotJob]:
     """
     The figures a finished pipeline step makes possible (before the grey-box fit ends).
@@ -74,9 +99,12 @@ def step_jobs(step: str, result: Any, out: Path) -> List[PlotJob]:
     Parameters
     ----------
     step : str
-        ``'frf'`` (coherences) or ``'static'`` (static characteristics); others give none.
+        ``'frf'`` (coherences), ``'static'`` (static characteristics) or ``'greybox_fit'``
+        (every figure of the grey-box fit: Bode diagrams with the model, time series,
+        residual analyses, the pole-zero map; drawn while the fit's checks and residual
+        tests run); others give none.
     result : IdentificationResult
-        The result so far.
+        The result so far (for ``'greybox_fit'`` an object with ``frfs`` and ``greybox``).
     out : Path
         The report folder.
 
@@ -91,12 +119,14 @@ def step_jobs(step: str, result: Any, out: Path) -> List[PlotJob]:
         for frf in result.frfs:
             jobs.append(PlotJob(out / f'coherence_{_file_name(frf.name)}.png', 'coherence',
                                 (frf,)))
-    elif step == 'static' and result.static is not None:
+    elif step == 'static' and getattr(result, 'static', None) is not None:
         for key, fit in result.static.fits.items():
             points = getattr(result.static, 'points', {}).get(key)
             if points is not None:
                 jobs.append(PlotJob(out / f'static_{_file_name(key)}.png', 'static',
                                     (key, fit, points[0], points[1])))
+    elif step == 'greybox_fit' and result.greybox is not None:
+        jobs = [job for job in report_jobs(result, out) if job.key]
     return jobs
 
 
@@ -119,23 +149,25 @@ def report_jobs(result: Any, out: Path) -> List[PlotJob]:
     """
     out = Path(out)
     coherence = {j.path: j for j in step_jobs('frf', result, out)}
+    key = fit_key(result.greybox)
     jobs = []
     for frf in result.frfs:
         stem = _file_name(frf.name)
-        jobs.append(PlotJob(out / f'bode_{stem}.png', 'bode', (frf,)))
+        jobs.append(PlotJob(out / f'bode_{stem}.png', 'bode', (frf,),
+                            key if frf.model_response is not None else ''))
         jobs.append(coherence[out / f'coherence_{stem}.png'])
     if result.greybox is not None:
         for name in result.greybox.time_s:
             stem = _file_name(name)
             slim = _slim_greybox(result.greybox, name)
-            jobs.append(PlotJob(out / f'time_{stem}.png', 'time', (slim, name)))
-            jobs.append(PlotJob(out / f'resid_{stem}.png', 'resid', (slim, name)))
+            jobs.append(PlotJob(out / f'time_{stem}.png', 'time', (slim, name), key))
+            jobs.append(PlotJob(out / f'resid_{stem}.png', 'resid', (slim, name), key))
     jobs += step_jobs('static', result, out)
     frfs = [SimpleNamespace(name=r.name, fit=r.fit) for r in result.frfs]
     greybox = (SimpleNamespace(linear_model=result.greybox.linear_model)
                if result.greybox is not None else None)
     jobs.append(PlotJob(out / 'pole_zero.png', 'pole_zero',
-                        (SimpleNamespace(frfs=frfs, greybox=greybox),)))
+                        (SimpleNamespace(frfs=frfs, greybox=greybox),), key))
     return jobs
 
 
@@ -252,6 +284,7 @@ class PlotPool:
         self._workers = int(workers)
         self._pool: Optional[ProcessPoolExecutor] = None
         self._futures: Dict[Path, Future] = {}
+        self._keys: Dict[Path, str] = {}
         self._pending: List[PlotJob] = []
         self._lock = threading.Lock()
         self._start_error: Optional[BaseException] = None
@@ -274,11 +307,13 @@ class PlotPool:
             self._pool = pool
             pending, self._pending = self._pending, []
             for job in pending:
-                self._futures[job.path] = pool.submit(draw, job)
+                self._submit_locked(job)
 
     def submit(self, jobs: Sequence[PlotJob]) -> None:
         """
-        Queue figures (a path already queued is not drawn twice).
+        Queue figures; a path already queued with the same key is not drawn twice.
+
+        With another key it is drawn again once the earlier drawing ended, and replaces it.
 
         Parameters
         ----------
@@ -286,16 +321,41 @@ class PlotPool:
             The figures.
         """
         with self._lock:
-            queued = set(self._futures) | {job.path for job in self._pending}
             for job in jobs:
-                if job.path in queued:
+                if self._keys.get(job.path) == job.key:
                     continue
-                queued.add(job.path)
+                self._keys[job.path] = job.key
                 job.path.parent.mkdir(parents=True, exist_ok=True)
                 if self._pool is None:
-                    self._pending.append(job)
+                    self._pending = [j for j in self._pending if j.path != job.path] + [job]
                 else:
-                    self._futures[job.path] = self._pool.submit(draw, job)
+                    self._submit_locked(job)
+
+    def _submit_locked(self, job: PlotJob) -> None:
+        """Submit a figure; one that replaces a figure being drawn waits for it to end."""
+        pool = self._pool
+        previous = self._futures.get(job.path)
+        if previous is None or previous.done():
+            self._futures[job.path] = pool.submit(draw, job)
+            return
+        chained: Future = Future()
+        self._futures[job.path] = chained
+
+        def finished(inner: Future) -> None:
+            if inner.cancelled():
+                chained.cancel()
+            elif inner.exception() is not None:
+                chained.set_exception(inner.exception())
+            else:
+                chained.set_result(inner.result())
+
+        def resubmit(_: Future) -> None:
+            try:
+                pool.submit(draw, job).add_done_callback(finished)
+            except BaseException as exc:    # the pool shut down: reported by wait()
+                chained.set_exception(exc)
+
+        previous.add_done_callback(resubmit)
 
     def submit_step(self, step: str, result: Any, out: Path) -> None:
         """
