@@ -122,15 +122,17 @@ def _progress(text: str) -> None:
     print(text, flush=True)
 
 
-def _plan_document(plan: RunPlan, load_kg: float) -> dict:
+def _plan_document(plan: RunPlan, load_kg: float, executor: Optional[str] = None) -> dict:
+    executor = executor or plan.executor
     doc = dataclasses.asdict(plan)
+    doc['executor_used'] = executor
     doc['experiment'] = '(see experiment.yaml)'
     doc['source'] = str(plan.source) if plan.source else None
     if plan.target == 'simulator':
         doc['simulator']['balance_file'] = str(plan.simulator.balance_file or '')
         doc['simulator']['load_mass_kg_used'] = load_kg
         doc['simulator']['max_state_wall_rate_Hz_used'] = runner_state_wall_rate_Hz(
-            plan.simulator, plan.experiment['sample_rate_Hz'], plan.block_size)
+            plan.simulator, plan.experiment['sample_rate_Hz'], plan.block_size, executor)
         doc.pop('bridge')
     else:
         doc.pop('simulator')
@@ -479,6 +481,9 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
     executor = None
     try:
         executor, executor_kind = make_executor(plan.executor)
+        if executor_kind != plan.executor:
+            (out / 'run.yaml').write_text(yaml.safe_dump(
+                _plan_document(plan, load_kg, executor_kind), sort_keys=False))
         if on_bridge:
             from emfc_ros.nodes.daq_bridge import DaqBridgeNode
             address = None
@@ -488,7 +493,7 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
                 _progress(f'  device emulator (in this process) on {address[0]}:'
                           f'{address[1]}, {plan.bridge.emulator.channels} analog inputs')
             values = bridge_parameters(plan, balance_path, load_kg, address)
-            doc = _plan_document(plan, load_kg)
+            doc = _plan_document(plan, load_kg, executor_kind)
             doc['run']['bridge']['parameters'] = values     # as given to the node
             (out / 'run.yaml').write_text(yaml.safe_dump(doc, sort_keys=False))
             device_node = DaqBridgeNode(namespace=ns, parameter_overrides=[
@@ -507,7 +512,7 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
                 Parameter('quantisation', value=bool(plan.simulator.quantisation)),
                 Parameter('state_rate_Hz', value=float(plan.simulator.state_rate_Hz)),
                 Parameter('max_state_wall_rate_Hz', value=runner_state_wall_rate_Hz(
-                    plan.simulator, rate, plan.block_size)),
+                    plan.simulator, rate, plan.block_size, executor_kind)),
                 Parameter('publish_groups', value=False)])
             device_name = 'plant_simulator'
         nodes.append(device_node)

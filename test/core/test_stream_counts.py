@@ -59,11 +59,24 @@ def test_the_custom_data_text_reads_back():
         from_mapping({'/a': {'recorded': 3, 'published': 'many'}})
 
 
-def test_the_runner_limits_states_only_above_one_per_block():
+def test_the_runner_limits_states_only_above_one_per_block_on_the_wait_set_executor():
     default = SimulatorPlan()                               # 10 Hz states
-    assert runner_state_wall_rate_Hz(default, 10000.0, 1000) == 0.0
-    assert runner_state_wall_rate_Hz(SimulatorPlan(state_rate_Hz=100.0), 10000.0, 100) == 0.0
+    wait_set = 'single_threaded'
+    assert runner_state_wall_rate_Hz(default, 10000.0, 1000, wait_set) == 0.0
+    assert runner_state_wall_rate_Hz(SimulatorPlan(state_rate_Hz=100.0), 10000.0, 100,
+                                     wait_set) == 0.0
     fast = SimulatorPlan(state_rate_Hz=1000.0)
-    assert runner_state_wall_rate_Hz(fast, 10000.0, 1000) == PLANT_STATE_WALL_RATE_HZ
+    assert runner_state_wall_rate_Hz(fast, 10000.0, 1000, wait_set) == PLANT_STATE_WALL_RATE_HZ
     given = SimulatorPlan(state_rate_Hz=1000.0, max_state_wall_rate_Hz=250.0)
-    assert runner_state_wall_rate_Hz(given, 10000.0, 1000) == 250.0
+    assert runner_state_wall_rate_Hz(given, 10000.0, 1000, wait_set) == 250.0
+
+
+def test_the_events_executor_needs_no_limit_up_to_the_history_depth_per_block():
+    fast = SimulatorPlan(state_rate_Hz=1000.0)             # 100 states per 1000-sample block
+    assert runner_state_wall_rate_Hz(fast, 10000.0, 1000) == 0.0
+    every = SimulatorPlan(state_rate_Hz=10000.0)           # one per sample
+    assert runner_state_wall_rate_Hz(every, 10000.0, 1000, 'events') == 0.0
+    assert runner_state_wall_rate_Hz(every, 10000.0, 1001, 'events') == \
+        PLANT_STATE_WALL_RATE_HZ
+    given = SimulatorPlan(state_rate_Hz=1000.0, max_state_wall_rate_Hz=250.0)
+    assert runner_state_wall_rate_Hz(given, 10000.0, 1000, 'events') == 250.0
