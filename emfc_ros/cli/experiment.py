@@ -368,9 +368,9 @@ def make_executor(kind: str) -> Tuple[Any, str]:
     which waits for DDS events in C++ and runs the callbacks in arrival order; the
     wait-set SingleThreadedExecutor rebuilds its wait set (every node's subscriptions,
     services, timers and QoS event handlers) for each callback, which took half of the
-    experiment phase of the shipped plan (490 blocks: 1.6-2.0 s against 0.8-1.0 s, measured
-    by ``tools/bench.sh bench_experiment``). Without it (an older rclpy) the wait-set executor
-    is used and the runner says so.
+    experiment phase of the shipped plan (490 blocks: 1.1-2.2 s against 0.5-0.9 s in
+    interleaved runs, ``docs/benchmarks.md``, main job, fifth round). Without it (an older
+    rclpy) the wait-set executor is used and the runner says so.
 
     Parameters
     ----------
