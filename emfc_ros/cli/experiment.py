@@ -50,9 +50,11 @@ QUIET_S = 0.1
 #: against 0.6 s with 8); the wait-set executor takes one message per subscription and
 #: cycle, which kept its 8-block window within one block.
 SIMULATOR_WINDOW_BLOCKS = {'events': 1, 'single_threaded': 8}
-#: Longest wait at the end of a run for the warm-up thread (:func:`warm_up`) [s]: it may still
-#: be compiling a kernel (an empty numba cache) when a run fails early.
-WARM_UP_JOIN_S = 120.0
+#: Longest wait at the end of a run for the warm-up thread (:func:`warm_up`) [s]. It has ended
+#: long before in a run that got to its experiment; it may still be compiling a kernel (an
+#: empty numba cache, 15 s and more) when a run fails early or Ctrl-C stops it, and the
+#: command does not wait for that (it leaves with os._exit, which ends the thread).
+WARM_UP_JOIN_S = 5.0
 
 
 class Phases:
