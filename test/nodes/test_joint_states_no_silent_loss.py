@@ -165,9 +165,13 @@ def test_every_published_joint_state_is_recorded_at_full_speed(tmp_path, process
     assert counts['/emfc/excitation/description'] >= 1
     assert counts['/emfc/measurements/description'] >= 1
     assert len(stamps) == published
-    # Stamped with simulated time: the bag lasts the experiment's 8 s (within a block),
-    # though the run took a fraction of that.
-    assert abs(duration_s - total / RATE_HZ) <= 0.2, duration_s
+    # Stamped with simulated time: the bag lasts the experiment's 8 s, though the run took a
+    # fraction of that. The recorder stamps a message with its clock when it takes it, and
+    # rclpy's time source keeps only the newest /clock: a recorder process that falls behind
+    # the plant stamps by up to the generator's window (8 blocks, 0.8 s) late (a clean-clone
+    # CI run on a loaded machine measured a bag of 7.7 s), never beyond the last tick.
+    window_s = 8 * 1000 / RATE_HZ
+    assert total / RATE_HZ - window_s - 0.1 <= duration_s <= total / RATE_HZ + 0.1, duration_s
     stamps = np.array(stamps)
     assert np.all(np.diff(stamps) > 0)
     period_ns = int(1e9 / STATE_RATE_HZ)
