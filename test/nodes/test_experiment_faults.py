@@ -408,6 +408,15 @@ def test_forged_heartbeats_do_not_keep_the_watchdog_of_a_stalled_host_fed(tmp_pa
 def test_setpoints_lost_on_the_way_fail_the_run_from_the_devices_record(
         tmp_path, lossy_emulator):
     plan = _plan(tmp_path, lossy_emulator.port, identify=False)
+    # The shipped lead (0.1 s, one block) leaves the device at the samples of a block whose
+    # last frame was lost about when the next block's first frame arrives: the device may
+    # see that as an underrun first (a clean-clone CI run failed so). With a lead of five
+    # blocks the frame after a lost one arrives 0.4 s before the device needs the lost
+    # samples, so the device records the gap itself, which is what this test checks.
+    doc = yaml.safe_load(plan.read_text())
+    doc['run']['bridge']['parameters']['excitation_lead_s'] = 0.5
+    doc['run']['bridge']['parameters']['watchdog_timeout_s'] = 2.0   # above lead + window
+    plan.write_text(yaml.safe_dump(doc, sort_keys=False))
     run = _Child(['emfc_ros.cli.experiment', str(plan), '-o', str(tmp_path / 'out')],
                  tmp_path)
     rc = run.finish(RUN_TIMEOUT_S)
