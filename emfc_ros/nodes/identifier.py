@@ -20,6 +20,11 @@ the parameters ``pan.load_mass_kg``/``pan.load_changer_coupled``, or the measure
 description's ``extra`` (the plant simulator publishes both there, a daq_bridge when told
 ``pan.*``). Without them ``~/identify`` is refused and ``~/result`` says which parameter to set
 (:mod:`emfc_ros.core.ident.live`).
+
+Live data are cut to the experiment on the excitation's clock (a daq_bridge measures on the
+device's clock from the offset its description publishes) and refused, like a bag, when a
+measurement description received while accumulating reported a device fault inside the
+experiment, also one a later description no longer shows (``~/reset``).
 """
 
 from __future__ import annotations
@@ -93,6 +98,8 @@ class IdentifierNode(Node):
         self._names: tuple = ()
         self._rate = 0.0
         self._extra: dict = {}            # the measurement description's extra
+        self._extras: List[dict] = []     # every extra received while accumulating (faults)
+        self._excitation_epoch: Optional[int] = None
         self._source = ''                 # who published the measurement description
         self._sections: list = []
         self._malformed = 0
@@ -164,10 +171,14 @@ class IdentifierNode(Node):
         self._rate = description.sample_rate_Hz
         self._extra = dict(description.extra)
         self._source = description.source
+        if self._accumulating and (not self._extras or self._extras[-1] != self._extra):
+            self._extras.append(self._extra)
 
     def _on_experiment(self, msg: String) -> None:
         try:
-            self._sections = list(msg_to_description(msg).extra.get('sections', []))
+            description = msg_to_description(msg)
+            self._sections = list(description.extra.get('sections', []))
+            self._excitation_epoch = description.epoch
         except BlockError as exc:
             self._malformed += 1
             self._last_error = str(exc)
@@ -207,6 +218,7 @@ class IdentifierNode(Node):
     def _srv_start(self, request: Trigger.Request, response: Trigger.Response):
         self._chunks, self._first_index = [], None
         self._tracker = SequenceTracker()
+        self._extras = [self._extra] if self._extra else []
         self._accumulating = True
         self._last_error = ''
         response.success = True
@@ -219,17 +231,20 @@ class IdentifierNode(Node):
             response.success, response.message = False, 'nothing accumulated (call ' \
                 '~/start_accumulating before the experiment)'
             return response
-        if self._first_index != 0:
-            response.success, response.message = False, (
-                f'accumulation began at sample {self._first_index}, not 0: start it before '
-                'the experiment')
-            return response
         if not self._sections:
             response.success, response.message = False, \
                 'no section table: excitation/description has not been received'
             return response
-        from emfc_ros.core.ident.live import resolve_live_plant
-        try:     # refused at once (and on ~/result) when the pan load is not known
+        from emfc_ros.core.ident.live import live_recording, resolve_live_plant
+        samples = np.concatenate(self._chunks, axis=1)
+        try:
+            # on the excitation's clock (a daq_bridge measures from an offset), refused when
+            # the device reported that the excitation was not applied as commanded; then
+            # refused when the pan load is not known: at once, and on ~/result
+            recording = live_recording(
+                {name: samples[i] for i, name in enumerate(self._names)}, self._first_index,
+                self._sections, self._rate, self._extras or [self._extra],
+                self._excitation_epoch, self.get_namespace().rstrip('/'))
             resolve_live_plant(self._options(), self._declared(), self._extra)
         except ValueError as exc:
             self._publish_result({'ok': False, 'output': None, 'error': str(exc),
@@ -241,12 +256,10 @@ class IdentifierNode(Node):
         if busy:
             response.success, response.message = False, busy
             return response
-        samples = np.concatenate(self._chunks, axis=1)
-        recording = {name: samples[i] for i, name in enumerate(self._names)}
         out = self._next_output('live')
         threading.Thread(target=self._work_arrays, args=(recording, out), daemon=True).start()
-        response.success, response.message = True, f'identifying {samples.shape[1]} samples ' \
-            f'into {out}'
+        n = len(next(iter(recording.values()))) if recording else 0
+        response.success, response.message = True, f'identifying {n} samples into {out}'
         return response
 
     def _srv_identify_bag(self, request: Trigger.Request, response: Trigger.Response):

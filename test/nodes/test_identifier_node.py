@@ -242,7 +242,7 @@ def test_live_greybox_takes_the_pan_load_from_the_stream_and_reports_a_failed_fi
     assert '**Identification FAILED**' in (Path(result['output']) / 'summary.md').read_text()
 
 
-def _publish_stream(node, n=4000, rate=10000.0, extra=None):
+def _publish_stream(node, n=4000, rate=10000.0, extra=None, n_experiment=None):
     """Publish a measurement stream without a pan load, and a one-section experiment."""
     from emfc_ros.core.blocks import Channel, StreamDescription
     from emfc_ros.nodes.convert import BLOCK_QOS, block_to_msg, description_to_msg
@@ -258,7 +258,7 @@ def _publish_stream(node, n=4000, rate=10000.0, extra=None):
     pubs['excitation/description'].publish(description_to_msg(StreamDescription(
         'excitation', rate, 1000, (Channel('coil', 'V'), Channel('load_changer', 'V')),
         epoch=1, extra={'sections': [{'name': 'coil_chirp', 'first_sample_index': 0,
-                                      'n_samples': n}]})))
+                                      'n_samples': n_experiment or n}]})))
     rng = np.random.default_rng(0)
     u = 1e-3 * rng.standard_normal(n)
     data = np.vstack([u, np.zeros(n), 1e-2 * u, np.zeros(n),
@@ -316,3 +316,185 @@ def test_live_data_without_a_pan_load_is_refused_naming_the_parameter(
     assert results['configuration']['source'] == (
         'load_mass_kg from identifier parameters pan.*; load_changer_coupled from identifier '
         'parameters pan.*')
+
+
+def _trigger(client_node, executor, name):
+    client = client_node.create_client(Trigger, name)
+    assert ros_harness.spin_until(executor, client.service_is_ready, TIMEOUT_S), name
+    future = client.call_async(Trigger.Request())
+    assert ros_harness.spin_until(executor, future.done, TIMEOUT_S), name
+    return future.result()
+
+
+def _bridge_plan_identification(path: Path) -> Path:
+    """The identification options of the shipped bridge plan, as an options file."""
+    doc = yaml.safe_load(config_file('experiment_bridge_emulator.yaml').read_text())
+    options = dict(doc['run']['identification'])
+    options.pop('enabled', None)
+    path.write_text(yaml.safe_dump(options))
+    return path
+
+
+@pytest.mark.slow
+def test_live_bridge_data_are_cut_at_the_excitation_offset_as_the_bag_is(
+        tmp_path, executor, ros_context):
+    # The daq_bridge measures on the device's clock from its start: excitation sample 0 was
+    # applied at the device sample its description publishes. Live data must be cut there,
+    # like the bag the recorder took of the same stream: both identifications are equal.
+    from emfc_ros.core.ident.from_bag import identify_bag
+    from emfc_ros.core.sim.balancing import balancing_load_mass_kg
+    from emfc_ros.nodes.daq_bridge import DaqBridgeNode
+    from emfc_ros.nodes.recorder import RecorderNode
+
+    params = BalanceParameters.load_yaml(config_file('balance_default.yaml'))
+    load_kg = balancing_load_mass_kg(params, True)
+    plan = yaml.safe_load(config_file('experiment_bridge_emulator.yaml').read_text())
+    experiment = tmp_path / 'experiment.yaml'
+    experiment.write_text(yaml.safe_dump({'experiment': plan['experiment']}))
+    options = _bridge_plan_identification(tmp_path / 'options.yaml')
+    bridge = DaqBridgeNode(context=ros_context, parameter_overrides=[
+        Parameter(k, value=v) for k, v in {
+            'backend': 'sim', 'autostart': False, 'block_size': 1000,
+            'balance_file': str(config_file('balance_default.yaml')),
+            'inputs': ['coil_setpoint_V', 'load_changer_setpoint_V', 'coil_current_A',
+                       'load_changer_current_A', 'sensor_V', 'position_m'],
+            'sim.seed': 5, 'sim.load_mass_kg': load_kg, 'sim.load_changer_coupled': True,
+            'pan.load_mass_kg': load_kg, 'pan.load_changer_coupled': 'true',
+            'state_rate_Hz': 10.0, 'publish_groups': False}.items()])
+    recorder = RecorderNode(context=ros_context, parameter_overrides=[
+        Parameter('output', value=str(tmp_path / 'bag')),
+        Parameter('topics', value=['measurements', 'measurements/description', 'excitation',
+                                   'excitation/description']),
+        Parameter('discovery_period_s', value=0.1), Parameter('autostart', value=False)])
+    generator = SignalGeneratorNode(context=ros_context, parameter_overrides=[
+        Parameter('experiment_file', value=str(experiment)),
+        Parameter('pacing', value='consumer'), Parameter('block_size', value=1000),
+        Parameter('window_blocks', value=4), Parameter('autostart', value=False)])
+    identifier = IdentifierNode(context=ros_context, parameter_overrides=[
+        Parameter('output_dir', value=str(tmp_path / 'out')),
+        Parameter('options_file', value=str(options))])
+    for node in (bridge, recorder, generator, identifier):
+        executor.add_node(node)
+    client = Client(ros_context, executor)
+    assert _trigger(client.node, executor, 'recorder/start').success
+    wanted = {'/measurements', '/measurements/description', '/excitation',
+              '/excitation/description'}
+    assert ros_harness.spin_until(
+        executor, lambda: wanted <= set(recorder.recorded_topics())
+        and generator.count_subscribers('excitation') >= 2
+        and bridge.count_subscribers('measurements') >= 2, TIMEOUT_S), (
+        recorder.recorded_topics(), generator.count_subscribers('excitation'),
+        bridge.count_subscribers('measurements'))
+    assert client.call('start_accumulating').success
+    assert _trigger(client.node, executor, 'daq_bridge/start').success
+    assert ros_harness.spin_until(
+        executor, lambda: bridge.status_values()['state'] == 'running', TIMEOUT_S)
+    assert _trigger(client.node, executor, 'signal_generator/start').success
+    total = sum(int(round(s['duration_s'] * 10000))
+                for s in plan['experiment']['section'].values())
+
+    def measured():
+        offset = identifier._extra.get('excitation_offset_samples')
+        accumulated = sum(c.shape[1] for c in identifier._chunks)
+        return offset is not None and accumulated >= offset + total + 2000
+
+    assert ros_harness.spin_until(executor, measured, 120.0)
+    assert _trigger(client.node, executor, 'daq_bridge/stop').success
+    assert ros_harness.spin_until(
+        executor, lambda: bridge.status_values()['state'] == 'stopped', TIMEOUT_S)
+    assert not bridge.faults(), bridge.faults()
+    offset = int(identifier._extra['excitation_offset_samples'])
+    assert offset > 0           # the device ran before the excitation came
+    assert _trigger(client.node, executor, 'recorder/stop').success
+
+    answer = client.call('identify')
+    assert answer.success, answer.message
+    assert f'identifying {total} samples' in answer.message
+    result = client.wait_result(1)
+    live = yaml.safe_load((Path(result['output']) / 'results.yaml').read_text())
+    bag_result, info = identify_bag(tmp_path / 'bag', yaml.safe_load(options.read_text()))
+    assert info['excitation_offset_samples'] == offset and info['samples'] == total
+    assert result['ok'] and bag_result.success, (result, bag_result.failures)
+    bag = yaml.safe_load(yaml.safe_dump(bag_result.to_dict()))
+    assert live['n_samples'] == total and live['greybox'] is not None
+    for key in ('sections', 'frequency_responses', 'static_characteristics', 'greybox',
+                'model_parameters'):
+        _assert_same(live[key], bag[key], key)
+
+
+#: Fields of results.yaml that say when or from where, not what was identified.
+NOT_COMPARED = {'time_s', 'timings_s', 'source', 'wall_time_s'}
+
+
+def _assert_same(a, b, where):
+    """Two results.yaml subtrees hold the same values (numbers to 1e-9)."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and set(a) == set(b), (where, sorted(a), sorted(b))
+        for key in a:
+            if key not in NOT_COMPARED:
+                _assert_same(a[key], b[key], f'{where}.{key}')
+    elif isinstance(a, list):
+        assert isinstance(b, list) and len(a) == len(b), where
+        for k, (x, y) in enumerate(zip(a, b)):
+            _assert_same(x, y, f'{where}[{k}]')
+    elif isinstance(a, float) or isinstance(b, float):
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=0, err_msg=where)
+    else:
+        assert a == b, (where, a, b)
+
+
+@pytest.mark.slow
+def test_live_data_with_a_device_fault_are_refused_even_after_the_fault_was_reset(
+        tmp_path, executor, ros_context):
+    # A daq_bridge latches a device fault in its measurement description; ~/reset clears it
+    # from the descriptions it publishes afterwards, not from the samples it touched.
+    from emfc_ros.core.blocks import Channel, StreamDescription
+    from emfc_ros.core.device.faults import Fault
+    from emfc_ros.nodes.convert import description_to_msg
+    offset, n = 1500, 4000
+    fault = Fault('device_underrun', offset + 2000, 1000, 'the device ran out of setpoints',
+                  False, 1)
+    extra = {'excitation_offset_samples': offset, 'excitation_epoch': 1,
+             'load_mass_kg': 0.05, 'load_changer_coupled': False}
+    options = tmp_path / 'options.yaml'
+    options.write_text(yaml.safe_dump({'greybox': {'enabled': False},
+                                       'static': {'enabled': False},
+                                       'tf_fit': {'enabled': False},
+                                       'frf': {'pan_sections': [], 'two_input_sections': []}}))
+    identifier = IdentifierNode(context=ros_context, parameter_overrides=[
+        Parameter('output_dir', value=str(tmp_path / 'out')),
+        Parameter('options_file', value=str(options))])
+    source = rclpy.create_node('stream_source', context=ros_context)
+    for node in (identifier, source):
+        executor.add_node(node)
+    client = Client(ros_context, executor)
+    pub, messages = _publish_stream(source, n=offset + n, n_experiment=n,
+                                    extra=dict(extra, faults=[fault.to_dict()]))
+    assert ros_harness.spin_until(
+        executor, lambda: bool(identifier._sections) and bool(identifier._extra.get('faults')),
+        TIMEOUT_S)
+    assert client.call('start_accumulating').success
+    assert ros_harness.spin_until(executor, lambda: pub.get_subscription_count() >= 1,
+                                  TIMEOUT_S)
+    for msg in messages:
+        pub.publish(msg)
+    assert ros_harness.spin_until(
+        executor, lambda: sum(c.shape[1] for c in identifier._chunks) >= offset + n, TIMEOUT_S)
+    # the bridge's description after ~/reset: no fault any more
+    names = ('coil_setpoint_V', 'load_changer_setpoint_V', 'coil_current_A',
+             'load_changer_current_A', 'position_m')
+    cleared = source.create_publisher(String, 'measurements/description', LATCHED_QOS)
+    cleared.publish(description_to_msg(StreamDescription(
+        'measurements', 10000.0, 1000, tuple(Channel(c, c.rsplit('_', 1)[1]) for c in names),
+        epoch=1, source='/test_stream', extra=dict(extra, faults=[]))))
+    assert ros_harness.spin_until(
+        executor, lambda: identifier._extra.get('faults') == [], TIMEOUT_S)
+
+    refused = client.call('identify')
+    assert not refused.success
+    assert 'did not apply the excitation' in refused.message, refused.message
+    assert 'device_underrun' in refused.message and 'experiment samples 2000' in \
+        refused.message, refused.message
+    result = client.wait_result(1)
+    assert result['ok'] is False and 'device_underrun' in result['error']
+    assert not (tmp_path / 'out').exists()          # nothing identified from such data

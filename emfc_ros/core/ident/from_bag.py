@@ -33,7 +33,9 @@ from typing import Any, Callable, Dict, Mapping, Optional, Tuple
 import yaml
 
 from emfc_ros.core.bag import custom_data, read_streams
-from emfc_ros.core.ident import plant
+from emfc_ros.core.ident import alignment, plant
+# DeviceFaultError: raised here and imported from here by the callers
+from emfc_ros.core.ident.alignment import DeviceFaultError, experiment_samples  # noqa: F401
 from emfc_ros.core.ident.errors import IdentificationError
 # PlantConfigurationError: raised here and imported from here by the callers
 from emfc_ros.core.ident.plant import (plant_entries, PLANT_KEYS,  # noqa: F401
@@ -260,9 +262,9 @@ def identify_bag(bag_path: Path, options: Optional[Mapping[str, Any]] = None,
         raise IdentificationError(f'the bag has no section table: record '
                                   f'{ns}/excitation/description with the experiment')
     offset = excitation_offset_samples(measurements, excitation, ns)
-    n_excitation = max([int(s['first_sample_index']) + int(s['n_samples']) for s in sections]
-                       + ([excitation.first_sample_index + excitation.n_samples]
-                          if excitation is not None else []))
+    n_excitation = experiment_samples(
+        sections, excitation.first_sample_index + excitation.n_samples
+        if excitation is not None else 0)
     refuse_faults(bag_path, measurements, ns, offset, n_excitation)
     recording = aligned_channels(measurements, offset, n_excitation if offset else None, ns)
     given = dict(options or {})
@@ -310,7 +312,7 @@ def refuse_faults(bag_path: Path, measurements: Any, namespace: str, offset: int
     DeviceFaultError
         If a fault touches the experiment's samples or its position is unknown.
     """
-    from emfc_ros.core.device.faults import describe, Fault, faults_from_extra
+    from emfc_ros.core.device.faults import Fault, faults_from_extra
     description = getattr(measurements, 'description', None)
     faults = []
     try:
@@ -324,22 +326,7 @@ def refuse_faults(bag_path: Path, measurements: Any, namespace: str, offset: int
     except (ValueError, yaml.YAMLError) as exc:      # YamlRefused is a ValueError
         raise DeviceFaultError(f"the bag's fault record is unreadable ({exc}): the data "
                                'cannot be trusted') from None
-    unique = list(dict.fromkeys(faults))
-    hits = []
-    for fault in unique:
-        span = fault.experiment_range(offset, n_samples)
-        if span is None or span[1] > span[0]:
-            hits.append(fault)
-    if hits:
-        raise DeviceFaultError(
-            'the device did not apply the excitation as commanded during this experiment, '
-            'so the data do not answer it; repeat the experiment:\n  '
-            + describe(hits, offset, n_samples, measurements.sample_rate_Hz).replace(
-                '\n', '\n  '))
-
-
-class DeviceFaultError(IdentificationError):
-    """The bag records device faults inside the experiment."""
+    alignment.refuse_faults(faults, offset, n_samples, measurements.sample_rate_Hz)
 
 
 def excitation_offset_samples(measurements: Any, excitation: Any = None,
@@ -372,20 +359,9 @@ def excitation_offset_samples(measurements: Any, excitation: Any = None,
         excitation while recording) or it belongs to another excitation epoch.
     """
     description = getattr(measurements, 'description', None)
-    extra = description.extra if description is not None else {}
-    if 'excitation_offset_samples' not in extra:
-        return 0
-    offset = extra['excitation_offset_samples']
-    if offset is None:
-        raise IdentificationError(f'{namespace}/measurements/description has no excitation '
-                                  'offset (excitation_offset_samples is null): the bridge did '
-                                  'not receive excitation while the bag was recording')
-    epoch = extra.get('excitation_epoch')
-    if excitation is not None and epoch is not None and int(epoch) != excitation.epoch:
-        raise IdentificationError(f'the excitation offset of {namespace}/measurements belongs '
-                                  f'to excitation epoch {epoch}, the recorded excitation is '
-                                  f'epoch {excitation.epoch}')
-    return int(offset)
+    return alignment.excitation_offset(
+        description.extra if description is not None else {},
+        excitation.epoch if excitation is not None else None, namespace)
 
 
 def aligned_channels(measurements: Any, offset: int, n_samples: Optional[int] = None,
@@ -415,16 +391,6 @@ def aligned_channels(measurements: Any, offset: int, n_samples: Optional[int] = 
     IdentificationError
         If the recording does not cover the experiment.
     """
-    first = measurements.first_sample_index
-    start = int(offset) - first
-    if start < 0:
-        raise IdentificationError(f'{namespace}/measurements starts at sample {first}, '
-                                  f'after the experiment began (sample {offset}): the start '
-                                  'of the experiment was not recorded')
-    stop = measurements.n_samples if n_samples is None else start + int(n_samples)
-    if stop > measurements.n_samples:
-        raise IdentificationError(f'{namespace}/measurements ends at sample '
-                                  f'{first + measurements.n_samples}, before the end of the '
-                                  f'experiment (sample {offset + int(n_samples)})')
-    return {name: measurements.channel(name)[start:stop]
-            for name in measurements.channel_names}
+    return alignment.align({name: measurements.channel(name)
+                            for name in measurements.channel_names},
+                           measurements.first_sample_index, offset, n_samples, namespace)

@@ -2,15 +2,22 @@
 Identification of live data: measurement blocks accumulated by the identifier node.
 
 The node hands over the accumulated channels, the section table of the excitation's
-description, the measurement description's ``extra`` and its own settings;
-:func:`identify_accumulated` resolves what was on the pan exactly as ``emfc-identify`` does for
-a bag (:mod:`emfc_ros.core.ident.plant`), never with a default, and runs the pipeline.
+description, the measurement description's ``extra`` and its own settings.
+:func:`live_recording` cuts the channels to the experiment on the excitation's clock and
+refuses data the device did not excite as commanded, as ``emfc-identify`` does for a bag
+(:mod:`emfc_ros.core.ident.alignment`: a daq_bridge measures on the device's clock, from an
+offset it publishes, and publishes its device faults); :func:`identify_accumulated` resolves
+what was on the pan exactly as for a bag (:mod:`emfc_ros.core.ident.plant`), never with a
+default, and runs the pipeline.
 """
 
 from __future__ import annotations
 
-from typing import Any, Callable, Dict, Mapping, Optional, Sequence, Tuple
+from typing import Any, Callable, Dict, Iterable, Mapping, Optional, Sequence, Tuple
 
+import numpy as np
+
+from emfc_ros.core.ident import alignment
 from emfc_ros.core.ident.plant import plant_entries, resolve_plant
 
 Progress = Callable[[str, float, str], None]
@@ -119,3 +126,66 @@ def identify_accumulated(recording: Mapping[str, Any], sections: Sequence[Any],
                                progress=progress)
     result.plant_source = source
     return result
+
+
+def live_recording(channels: Mapping[str, np.ndarray], first_index: int,
+                   sections: Sequence[Mapping[str, Any]], sample_rate_Hz: float,
+                   description_extras: Iterable[Mapping[str, Any]],
+                   excitation_epoch: Optional[int] = None,
+                   namespace: str = '') -> Dict[str, np.ndarray]:
+    """
+    Accumulated measurements cut to the experiment, on the excitation's sample clock.
+
+    Parameters
+    ----------
+    channels : mapping of str to ndarray
+        Channel name to the accumulated 1-D record, element 0 measurement sample
+        ``first_index``.
+    first_index : int
+        Measurement sample index of the first accumulated sample.
+    sections : sequence of mapping
+        The excitation description's section table.
+    sample_rate_Hz : float
+        Sample rate of the measurements [Hz].
+    description_extras : iterable of mapping
+        The ``extra`` of every measurement description received while accumulating, the
+        newest last: its ``excitation_offset_samples`` places the experiment; the faults of
+        all of them count (a fault acknowledged with the daq_bridge's ``~/reset`` leaves its
+        later descriptions, not the data).
+    excitation_epoch : int, optional
+        Epoch of the excitation description whose section table is used.
+    namespace : str
+        For messages.
+
+    Returns
+    -------
+    dict of str to ndarray
+        Channel name to the record whose index ``k`` is excitation sample ``k``: the
+        experiment's samples where the measurements have an offset (a daq_bridge), all the
+        accumulated samples from the first on otherwise (the plant simulator).
+
+    Raises
+    ------
+    IdentificationError
+        If the offset is unknown or of another excitation, or the accumulated samples do not
+        cover the experiment.
+    DeviceFaultError
+        If the device reported that the excitation was not applied as commanded during the
+        experiment (or a fault record is malformed).
+    """
+    from emfc_ros.core.device.faults import faults_from_extra
+
+    extras = list(description_extras) or [{}]
+    offset = alignment.excitation_offset(extras[-1], excitation_epoch, namespace,
+                                         'the identifier was accumulating')
+    total = alignment.experiment_samples(sections)
+    faults = []
+    for extra in extras:
+        try:
+            faults.extend(faults_from_extra(extra))
+        except ValueError as exc:
+            raise alignment.DeviceFaultError(f"the measurement description's fault record is "
+                                             f'unreadable ({exc}): the data cannot be '
+                                             'trusted') from None
+    alignment.refuse_faults(faults, offset, total, sample_rate_Hz)
+    return alignment.align(channels, first_index, offset, total if offset else None, namespace)
