@@ -10,6 +10,7 @@ nodes.
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Tuple
 
@@ -46,7 +47,8 @@ BRIDGE_OWN_KEYS = {'balance_file': 'run.bridge.balance_file',
 BRIDGE_RUNNER_DEFAULTS = {'state_rate_Hz': 10.0, 'publish_groups': False}
 #: The daq_bridge node's own defaults that the plan checks depend on.
 BRIDGE_NODE_DEFAULTS = {'watchdog_timeout_s': 1.0, 'excitation_lead_s': 0.1,
-                        'excitation_mode': 'stream', 'udp.device_host': '127.0.0.1'}
+                        'excitation_mode': 'stream', 'udp.device_host': '127.0.0.1',
+                        'block_size': 1000}
 SIMULATOR_KEYS = ('balance_file', 'load_mass_kg', 'load_changer_coupled', 'seed', 'noise',
                   'quantisation', 'state_rate_Hz', 'max_state_wall_rate_Hz')
 RECORDING_KEYS = ('topics', 'flush_period_s', 'max_bag_size_B', 'max_bag_duration_s')
@@ -619,6 +621,8 @@ def bridge_plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
                           f'applied: the generator runs up to {ahead_s:g} s ahead of the '
                           f'device; use at least {ahead_s + 0.2:g} s or fewer '
                           f'{"window" if pacing == "consumer" else "lead"}_blocks')
+    if pacing == 'consumer':
+        check_consumer_window(window, block_size, rate, params, origin, path)
 
     start_emulator = get_bool(cfg, 'start_emulator', path, default=False)
     emu_cfg = get_mapping(cfg, 'emulator', path, default={})
@@ -667,6 +671,58 @@ def bridge_plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
         load_changer_coupled=get_bool(cfg, 'load_changer_coupled', path, default=True),
         pacing=pacing, window_blocks=window, lead_blocks=lead,
         settle_s=get_float(cfg, 'settle_s', path, default=0.2, minimum=0.0, maximum=60.0))
+
+
+def check_consumer_window(window_blocks: int, block_size: int, rate_Hz: float,
+                          params: Mapping[str, Any], origin: Mapping[str, str],
+                          path: str = 'run.bridge') -> None:
+    """
+    Refuse a consumer-paced generator whose window cannot feed the bridge's lead.
+
+    The daq_bridge acknowledges excitation as the device measures it (one measurement block
+    at a time) and writes setpoints ``excitation_lead_s`` ahead of the newest measured
+    sample; a consumer-paced generator stays at most ``window_blocks`` blocks ahead of the
+    acknowledged samples. Unless the lead plus one measurement block fits in the window, the
+    bridge writes setpoints the generator was not yet allowed to send: the outputs are at
+    their safe values there and the excitation arrives late (measured: with a 0.5 s lead and a
+    0.4 s window 59 000 of 65 000 samples were not applied).
+
+    Parameters
+    ----------
+    window_blocks : int
+        The generator's window [blocks].
+    block_size : int
+        Samples per excitation block.
+    rate_Hz : float
+        Sample rate [Hz].
+    params : mapping
+        The daq_bridge parameters (``excitation_lead_s`` [s], ``block_size`` [samples]).
+    origin : mapping
+        Where each parameter was given, for the message.
+    path : str
+        The plan key of the bridge section.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``excitation_lead_s`` and the window that would fit.
+    """
+    lead_s = float(params.get('excitation_lead_s', BRIDGE_NODE_DEFAULTS['excitation_lead_s']))
+    try:
+        measured = int(params.get('block_size', BRIDGE_NODE_DEFAULTS['block_size']))
+    except (TypeError, ValueError):
+        return                          # not a block size: the node refuses it, naming it
+    window_s = window_blocks * block_size / rate_Hz
+    need_s = lead_s + measured / rate_Hz
+    if need_s > window_s * (1.0 + 1e-9):
+        blocks = int(math.ceil(need_s * rate_Hz / block_size - 1e-9))
+        raise ConfigError(origin.get('excitation_lead_s', f'{path}.parameters.excitation_lead_s'),
+                          f'{lead_s:g} s plus one measurement block ({measured / rate_Hz:g} s) '
+                          f"does not fit in the generator's window ({window_blocks} blocks, "
+                          f'{window_s:g} s): a consumer-paced generator stays at most its '
+                          'window ahead of what the device measured, so the bridge would run '
+                          'out of excitation and output the safe values; use '
+                          f'{path}.window_blocks >= {blocks} or a shorter excitation_lead_s')
 
 
 def load_plan(path: Path) -> RunPlan:

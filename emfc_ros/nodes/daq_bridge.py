@@ -263,7 +263,8 @@ class DaqBridgeNode(Node):
         self._early: List[Tuple[Block, np.ndarray, int]] = []
         # Everything that waits for the device runs here, in order, never on the executor.
         self._jobs = DeviceJobs('daq-bridge-device')
-        self._worker_faults: List[Tuple[str, Optional[int], str]] = []
+        # (kind, device index, message, exact) found off the executor thread, latched by it
+        self._worker_faults: List[Tuple[str, Optional[int], str, bool]] = []
         self._retry_at: Optional[float] = None
         self._autostart_active = False
         self._error = ''
@@ -842,6 +843,7 @@ class DaqBridgeNode(Node):
             if self._offset is not None and not halted:
                 if q.queued and q.head_index < w:
                     late = min(w - q.head_index, q.queued)
+                    self._late_fault(q.head_index, late)
                     q.pop(late)
                     self._counts['excitation_late_samples'] += late
                 lead = max(0, q.head_index - w)
@@ -860,6 +862,20 @@ class DaqBridgeNode(Node):
         except (DeviceError, DeviceConfigError) as exc:
             self._counts['setpoint_write_errors'] += 1
             self._last_error = f'write_setpoints: {exc}'
+
+    def _late_fault(self, device_index: int, samples: int) -> None:
+        """Excitation that came after its device samples were written: a fault (lock held)."""
+        if self._monitor.has('excitation_late') or \
+                any(f[0] == 'excitation_late' for f in self._worker_faults):
+            return
+        lead_s = self._runtime['excitation_lead_s']
+        self._worker_faults.append((
+            'excitation_late', int(device_index),
+            f'{samples} excitation samples arrived after their device samples had been '
+            f'written (from device sample {device_index}): the generator, or the link to it, '
+            f'was more than excitation_lead_s ({lead_s:g} s) behind the device, or a '
+            "consumer-paced generator's window is shorter than that lead; the outputs were at "
+            'their safe values there', True))
 
     def _acknowledge(self, device_end: int) -> None:
         with self._lock:
@@ -1006,7 +1022,7 @@ class DaqBridgeNode(Node):
         """A fault the worker saw: latched by the executor's next watchdog tick."""
         self._last_error = message
         with self._lock:
-            self._worker_faults.append((kind, self._device_index_now(), message))
+            self._worker_faults.append((kind, self._device_index_now(), message, False))
 
     def _drive_safe(self, why: str) -> str:
         """
@@ -1085,8 +1101,8 @@ class DaqBridgeNode(Node):
         with self._lock:
             found, self._worker_faults = self._worker_faults, []
         if found:
-            self._latch([self._monitor.add(kind, index, None, message)
-                         for kind, index, message in found])
+            self._latch([self._monitor.add(kind, index, None, message, exact)
+                         for kind, index, message, exact in found])
         if self._safe_failed:
             message, self._safe_failed = self._safe_failed, ''
             self._last_error = message

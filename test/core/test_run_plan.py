@@ -122,6 +122,27 @@ def test_bad_bridge_plans_are_refused_naming_the_key(change, key):
     assert info.value.key == key, info.value
 
 
+def test_a_bridge_lead_the_consumer_window_cannot_feed_is_refused():
+    # Consumer pacing keeps the generator at most window_blocks ahead of what the device
+    # measured; the bridge writes excitation_lead_s ahead of the newest measured block. A
+    # lead of 0.5 s with the 0.4 s window left 59 000 of 65 000 samples unapplied.
+    base = Path(config_file('experiment_bridge_emulator.yaml')).parent
+    cfg = _bridge_cfg()
+    cfg['bridge']['parameters'].update({'excitation_lead_s': 0.5, 'watchdog_timeout_s': 2.0})
+    with pytest.raises(ConfigError) as info:
+        plan_from_mapping(cfg, base)
+    assert info.value.key == 'run.bridge.parameters.excitation_lead_s', info.value
+    assert 'window_blocks >= 6' in str(info.value), info.value
+    cfg['bridge']['window_blocks'] = 6           # 0.5 s lead + one 0.1 s block = 0.6 s
+    assert plan_from_mapping(cfg, base).bridge.window_blocks == 6
+    cfg['bridge']['parameters']['excitation_lead_s'] = 0.51
+    with pytest.raises(ConfigError, match='window_blocks >= 7'):
+        plan_from_mapping(cfg, base)
+    cfg['bridge']['pacing'] = 'wall'            # paced to the wall clock: no window
+    cfg['bridge']['lead_blocks'] = 8
+    assert plan_from_mapping(cfg, base).bridge.pacing == 'wall'
+
+
 def test_a_plan_for_a_real_device_declares_the_mass_on_the_pan():
     base = Path(config_file('experiment_bridge_emulator.yaml')).parent
     cfg = _bridge_cfg()

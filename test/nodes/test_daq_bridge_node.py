@@ -313,6 +313,35 @@ def test_a_stream_taken_after_its_sample_0_is_a_latched_fault(executor, ros_cont
         executor, lambda: np.any(np.abs(applied(probe)[1] - 0.25) <= DAC_LSB_V), TIMEOUT_S)
 
 
+def test_excitation_that_arrives_after_its_device_samples_is_a_latched_fault(
+        executor, ros_context, emulator):
+    # A generator (or its link) that falls more than excitation_lead_s behind the device:
+    # the bridge has written the device samples of the missing excitation with the safe
+    # values; the samples that come afterwards are dropped as late, which must fail the run.
+    bridge, probe = started_udp_bridge(executor, ros_context, emulator)
+    for msg in excitation_blocks(0, 2, 0.25, 0.0):
+        probe.excitation.publish(msg)
+    assert ros_harness.spin_until(
+        executor, lambda: bridge.diagnostic_values()['excitation_offset_samples'] != '',
+        TIMEOUT_S)
+    offset = int(bridge.diagnostic_values()['excitation_offset_samples'])
+    # the stream ended at its sample 1000: the bridge has written the safe values for more
+    # than 2000 device samples after it
+    assert ros_harness.spin_until(
+        executor, lambda: bridge.diagnostic_values()['excitation_underrun_samples'] > 2000,
+        TIMEOUT_S)
+    assert bridge.faults() == ()                # safe values at the end of a stream: no fault
+    for msg in excitation_blocks(1000, 2, 0.25, 0.0):
+        probe.excitation.publish(msg)
+    assert ros_harness.spin_until(
+        executor, lambda: probe.faults() == ['excitation_late']
+        and probe.level() == DiagnosticStatus.ERROR, TIMEOUT_S)
+    (fault,) = bridge.faults()
+    assert fault.exact and fault.device_index == offset + 1000, (fault, offset)
+    assert 'excitation_lead_s (0.1 s)' in fault.message
+    assert bridge.diagnostic_values()['excitation_late_samples'] == 1000
+
+
 def test_emergency_stop_acts_within_one_block_and_latches_until_reset(
         executor, ros_context, emulator):
     bridge = udp_bridge(ros_context, emulator, excitation_mode='function_generator',

@@ -415,6 +415,7 @@ def test_setpoints_lost_on_the_way_fail_the_run_from_the_devices_record(
     # samples, so the device records the gap itself, which is what this test checks.
     doc = yaml.safe_load(plan.read_text())
     doc['run']['bridge']['parameters']['excitation_lead_s'] = 0.5
+    doc['run']['bridge']['window_blocks'] = 6     # lead + one measured block (plan check)
     doc['run']['bridge']['parameters']['watchdog_timeout_s'] = 2.0   # above lead + window
     plan.write_text(yaml.safe_dump(doc, sort_keys=False))
     run = _Child(['emfc_ros.cli.experiment', str(plan), '-o', str(tmp_path / 'out')],

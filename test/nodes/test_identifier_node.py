@@ -360,7 +360,9 @@ def test_live_bridge_data_are_cut_at_the_excitation_offset_as_the_bag_is(
                        'load_changer_current_A', 'sensor_V', 'position_m'],
             'sim.seed': 5, 'sim.load_mass_kg': load_kg, 'sim.load_changer_coupled': True,
             'pan.load_mass_kg': load_kg, 'pan.load_changer_coupled': 'true',
-            'state_rate_Hz': 10.0, 'publish_groups': False}.items()])
+            'state_rate_Hz': 10.0, 'publish_groups': False,
+            # what is tested is the alignment, not the real-time margin of one busy process
+            'excitation_lead_s': 0.5, 'watchdog_timeout_s': 2.0}.items()])
     recorder = RecorderNode(context=ros_context, parameter_overrides=[
         Parameter('output', value=str(tmp_path / 'bag')),
         Parameter('topics', value=['measurements', 'measurements/description', 'excitation',
@@ -369,7 +371,8 @@ def test_live_bridge_data_are_cut_at_the_excitation_offset_as_the_bag_is(
     generator = SignalGeneratorNode(context=ros_context, parameter_overrides=[
         Parameter('experiment_file', value=str(experiment)),
         Parameter('pacing', value='consumer'), Parameter('block_size', value=1000),
-        Parameter('window_blocks', value=4), Parameter('autostart', value=False)])
+        # ahead of the device by more than the bridge's lead plus one measured block
+        Parameter('window_blocks', value=8), Parameter('autostart', value=False)])
     identifier = IdentifierNode(context=ros_context, parameter_overrides=[
         Parameter('output_dir', value=str(tmp_path / 'out')),
         Parameter('options_file', value=str(options))])

@@ -40,6 +40,12 @@ Kinds (:data:`KINDS`):
 ``generator_unconfirmed``
     The device did not confirm a change of its function generator made while running (or
     the one restoring it after an emergency stop): it may still output the old one.
+``excitation_late``
+    Excitation samples arrived after the daq_bridge had written the device samples they were
+    due at (the generator, or the link to it, fell more than ``excitation_lead_s`` behind the
+    device, or a consumer-paced generator's window is shorter than the lead): the outputs
+    were at their safe values there and the late samples were dropped. Where the first of
+    them lies is the bridge's own write position (exact).
 ``excitation_start_missing``
     The daq_bridge mapped an excitation stream onto the device clock from a block after the
     stream's sample 0 (the stream began before the device ran, or the device's clock
@@ -54,7 +60,8 @@ from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 KINDS = ('device_watchdog', 'device_underrun', 'device_setpoint_gap',
          'device_setpoint_rejected', 'device_lost', 'excitation_watchdog', 'emergency_stop',
-         'safe_outputs_unconfirmed', 'generator_unconfirmed', 'excitation_start_missing')
+         'safe_outputs_unconfirmed', 'generator_unconfirmed', 'excitation_start_missing',
+         'excitation_late')
 #: Cumulative health counters compared with their values at the start of a run.
 BASELINE_KEYS = ('device_underrun_samples', 'device_watchdog_trips', 'reconnects',
                  'device_gap_filled_samples', 'device_setpoint_frames_rejected',
