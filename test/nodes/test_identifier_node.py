@@ -267,9 +267,8 @@ def _publish_stream(node, n=4000, rate=10000.0, extra=None, n_experiment=None):
                     for first in range(0, n, 1000)]
 
 
-@pytest.mark.slow
-def test_live_data_without_a_pan_load_is_refused_naming_the_parameter(
-        tmp_path, executor, ros_context):
+def _frf_only_identifier(tmp_path, executor, ros_context):
+    """An identifier running the FRF step only, a node to publish a stream, a client."""
     options = tmp_path / 'options.yaml'
     options.write_text(yaml.safe_dump({'greybox': {'enabled': False},
                                        'static': {'enabled': False},
@@ -281,7 +280,13 @@ def test_live_data_without_a_pan_load_is_refused_naming_the_parameter(
     source = rclpy.create_node('stream_source', context=ros_context)
     for node in (identifier, source):
         executor.add_node(node)
-    client = Client(ros_context, executor)
+    return identifier, source, Client(ros_context, executor)
+
+
+@pytest.mark.slow
+def test_live_data_without_a_pan_load_is_refused_naming_the_parameter(
+        tmp_path, executor, ros_context):
+    identifier, source, client = _frf_only_identifier(tmp_path, executor, ros_context)
     pub, messages = _publish_stream(source)
     assert ros_harness.spin_until(
         executor, lambda: bool(identifier._sections) and bool(identifier._names), TIMEOUT_S)
@@ -459,18 +464,7 @@ def test_live_data_with_a_device_fault_are_refused_even_after_the_fault_was_rese
                   False, 1)
     extra = {'excitation_offset_samples': offset, 'excitation_epoch': 1,
              'load_mass_kg': 0.05, 'load_changer_coupled': False}
-    options = tmp_path / 'options.yaml'
-    options.write_text(yaml.safe_dump({'greybox': {'enabled': False},
-                                       'static': {'enabled': False},
-                                       'tf_fit': {'enabled': False},
-                                       'frf': {'pan_sections': [], 'two_input_sections': []}}))
-    identifier = IdentifierNode(context=ros_context, parameter_overrides=[
-        Parameter('output_dir', value=str(tmp_path / 'out')),
-        Parameter('options_file', value=str(options))])
-    source = rclpy.create_node('stream_source', context=ros_context)
-    for node in (identifier, source):
-        executor.add_node(node)
-    client = Client(ros_context, executor)
+    identifier, source, client = _frf_only_identifier(tmp_path, executor, ros_context)
     pub, messages = _publish_stream(source, n=offset + n, n_experiment=n,
                                     extra=dict(extra, faults=[fault.to_dict()]))
     assert ros_harness.spin_until(
