@@ -283,6 +283,17 @@ def _frf_only_identifier(tmp_path, executor, ros_context):
     return identifier, source, Client(ros_context, executor)
 
 
+def _accumulate(executor, identifier, client, pub, messages, n):
+    """Start accumulating, publish the stream's blocks, wait until n samples are in."""
+    assert client.call('start_accumulating').success
+    assert ros_harness.spin_until(executor, lambda: pub.get_subscription_count() >= 1,
+                                  TIMEOUT_S)
+    for msg in messages:
+        pub.publish(msg)
+    assert ros_harness.spin_until(
+        executor, lambda: sum(c.shape[1] for c in identifier._chunks) >= n, TIMEOUT_S)
+
+
 @pytest.mark.slow
 def test_live_data_without_a_pan_load_is_refused_naming_the_parameter(
         tmp_path, executor, ros_context):
@@ -290,13 +301,7 @@ def test_live_data_without_a_pan_load_is_refused_naming_the_parameter(
     pub, messages = _publish_stream(source)
     assert ros_harness.spin_until(
         executor, lambda: bool(identifier._sections) and bool(identifier._names), TIMEOUT_S)
-    assert client.call('start_accumulating').success
-    assert ros_harness.spin_until(executor, lambda: pub.get_subscription_count() >= 1,
-                                  TIMEOUT_S)
-    for msg in messages:
-        pub.publish(msg)
-    assert ros_harness.spin_until(
-        executor, lambda: sum(c.shape[1] for c in identifier._chunks) >= 4000, TIMEOUT_S)
+    _accumulate(executor, identifier, client, pub, messages, 4000)
 
     refused = client.call('identify')
     assert not refused.success
@@ -470,13 +475,7 @@ def test_live_data_with_a_device_fault_are_refused_even_after_the_fault_was_rese
     assert ros_harness.spin_until(
         executor, lambda: bool(identifier._sections) and bool(identifier._extra.get('faults')),
         TIMEOUT_S)
-    assert client.call('start_accumulating').success
-    assert ros_harness.spin_until(executor, lambda: pub.get_subscription_count() >= 1,
-                                  TIMEOUT_S)
-    for msg in messages:
-        pub.publish(msg)
-    assert ros_harness.spin_until(
-        executor, lambda: sum(c.shape[1] for c in identifier._chunks) >= offset + n, TIMEOUT_S)
+    _accumulate(executor, identifier, client, pub, messages, offset + n)
     # the bridge's description after ~/reset: no fault any more
     names = ('coil_setpoint_V', 'load_changer_setpoint_V', 'coil_current_A',
              'load_changer_current_A', 'position_m')
