@@ -86,6 +86,12 @@ class Probe:
                     return status.level
         return None
 
+    def latched(self, executor, kind):
+        """Wait until the description reports just this fault and diagnostics say ERROR."""
+        return ros_harness.spin_until(
+            executor, lambda: self.faults() == [kind]
+            and self.level() == DiagnosticStatus.ERROR, TIMEOUT_S)
+
     def faults(self):
         """Fault kinds in the latest measurement description."""
         if not self.descriptions:
@@ -275,9 +281,7 @@ def test_watchdog_drives_outputs_safe_within_one_block_and_setpoints_are_clamped
     # Excitation was still queued at the trip: not applied, a latched fault.
     (fault,) = bridge.faults()
     assert fault.kind == 'excitation_watchdog' and 0 < fault.samples < 10000
-    assert ros_harness.spin_until(
-        executor, lambda: probe.faults() == ['excitation_watchdog']
-        and probe.level() == DiagnosticStatus.ERROR, TIMEOUT_S)
+    assert probe.latched(executor, 'excitation_watchdog')
     assert values['excitation_blocks'] == 20 and values['excitation_gaps'] == 0
     assert probe.acks and probe.acks == sorted(probe.acks)
     # New excitation re-arms the stream.
@@ -302,9 +306,7 @@ def test_a_stream_taken_after_its_sample_0_is_a_latched_fault(executor, ros_cont
     bridge, probe = started_udp_bridge(executor, ros_context, emulator)
     for msg in excitation_blocks(5000, 4, 0.25, 0.0):
         probe.excitation.publish(msg)
-    assert ros_harness.spin_until(
-        executor, lambda: probe.faults() == ['excitation_start_missing']
-        and probe.level() == DiagnosticStatus.ERROR, TIMEOUT_S)
+    assert probe.latched(executor, 'excitation_start_missing')
     (fault,) = bridge.faults()
     assert fault.kind == 'excitation_start_missing' and fault.exact
     assert 'samples 0 to 4999' in fault.message
@@ -333,9 +335,7 @@ def test_excitation_that_arrives_after_its_device_samples_is_a_latched_fault(
     assert bridge.faults() == ()                # safe values at the end of a stream: no fault
     for msg in excitation_blocks(1000, 2, 0.25, 0.0):
         probe.excitation.publish(msg)
-    assert ros_harness.spin_until(
-        executor, lambda: probe.faults() == ['excitation_late']
-        and probe.level() == DiagnosticStatus.ERROR, TIMEOUT_S)
+    assert probe.latched(executor, 'excitation_late')
     (fault,) = bridge.faults()
     assert fault.exact and fault.device_index == offset + 1000, (fault, offset)
     assert 'excitation_lead_s (0.1 s)' in fault.message
@@ -369,9 +369,7 @@ def test_emergency_stop_acts_within_one_block_and_latches_until_reset(
                                   TIMEOUT_S)
     assert [f.kind for f in bridge.faults()] == ['emergency_stop']
     assert bridge.faults()[0].device_index == stop
-    assert ros_harness.spin_until(
-        executor, lambda: probe.faults() == ['emergency_stop']
-        and probe.level() == DiagnosticStatus.ERROR, TIMEOUT_S)
+    assert probe.latched(executor, 'emergency_stop')
     n = len(probe.blocks)
     assert ros_harness.spin_until(executor, lambda: len(probe.blocks) >= n + 4, TIMEOUT_S)
     assert all(np.all(b[2][0] == 0.0) for b in probe.blocks[n:])
