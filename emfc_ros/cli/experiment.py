@@ -41,6 +41,11 @@ START_WAIT_S = 30.0
 #: Closing the recording: the bag must have stopped growing this long once every counted
 #: stream is complete [s].
 QUIET_S = 0.1
+#: After a device fault, how long the run goes on gathering the faults of the same event
+#: before it stops [s]: a host stall shows as late excitation at once and as the device's
+#: watchdog trip with the next heartbeat reply (0.1 s); a clean-clone CI run stopped on the
+#: first and its bag lacked the second, the root cause.
+FAULT_GATHER_S = 0.5
 #: Excitation blocks the generator keeps in flight to the simulated plant, per executor. The
 #: recorder stamps a message with its node's simulated time when it takes it, and rclpy's
 #: time source keeps only the newest /clock message (depth 1). The events executor runs the
@@ -689,8 +694,12 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
                 raise RuntimeError(f'experiment not finished after {plan.timeout_s} s: '
                                    f'{min(measured(), total)} of {total} samples measured')
             if on_bridge and device_node.faults():
-                # The recorder keeps the faults in the bag once their description is in.
-                spin_until(lambda: recorder.recorded_faults() > 0, 5.0)
+                # The faults of one event come within a heartbeat or two; the recorder keeps
+                # each in the bag once a description with it is in.
+                until = time.monotonic() + FAULT_GATHER_S
+                spin_until(lambda: time.monotonic() >= until, FAULT_GATHER_S + 1.0)
+                spin_until(lambda: recorder.recorded_faults() >= len(device_node.faults()),
+                           5.0)
                 raise ExperimentFault(fault_message(device_node.faults(), seen['offset'],
                                                     total, rate, bag))
             if on_bridge and len(seen['epochs']) > 1:
