@@ -33,11 +33,12 @@ the derived numbers in :mod:`~emfc_ros.core.ident.balance_derived`.
 
 from __future__ import annotations
 
+from concurrent.futures import Future
 import dataclasses
 import functools
 import math
 import os
-from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
+from typing import Any, Callable, Dict, List, Mapping, Optional, Protocol, Sequence, Tuple
 
 import numpy as np
 
@@ -135,9 +136,9 @@ def frequency_domain_stage(setting: Setting, channels: Mapping[str, np.ndarray],
                            names: Sequence[str], band_Hz: Tuple[float, float], hold: str,
                            verdict: Verdict, report: Progress,
                            threshold: float = MAX_RELATIVE_UNCERTAINTY,
-                           lower_factor: float = 0.2
+                           lower_factor: float = 0.2, executor: Optional['Offload'] = None
                            ) -> Tuple[Dict[str, float], Optional[balance_frf.FrfFit],
-                                      Optional[FreeSetChoice]]:
+                                      Optional[FreeSetChoice], Optional['PendingProbe']]:
     """
     Start values, free set and frequency-domain estimate of the dynamic parameters.
 
@@ -172,6 +173,10 @@ def frequency_domain_stage(setting: Setting, channels: Mapping[str, np.ndarray],
         of ``greybox.relative_bounds``): a model that cannot follow the data (e.g. masses
         fixed at values the data contradict) ends at a bound, which the verdict reports,
         instead of running a stiffness to zero.
+    executor : Offload, optional
+        Where the probe for a second optimum (:func:`probe_ambiguity`) runs while the caller
+        goes on with the time-domain fit (e.g. a process pool); default here, before
+        returning.
 
     Returns
     -------
@@ -182,6 +187,9 @@ def frequency_domain_stage(setting: Setting, channels: Mapping[str, np.ndarray],
         The frequency-domain fit.
     choice : FreeSetChoice or None
         The identifiability analysis (None without responses).
+    probe : PendingProbe or None
+        The probe running on ``executor`` (None: it ran here, or there was nothing to probe);
+        :meth:`PendingProbe.outcome` gives its result.
     """
     configured = {n: configured_value(setting, n) for n in names}
     frfs = balance_frf.measure_frfs(channels, setting.sample_rate_Hz, jobs, setting.balance,
@@ -190,7 +198,7 @@ def frequency_domain_stage(setting: Setting, channels: Mapping[str, np.ndarray],
     if not frfs:
         verdict.warnings.append('greybox: no dynamic section gives a frequency response; the '
                                 'mechanics start from their configured values')
-        return configured, None, None
+        return configured, None, None, None
     model = balance_frf.MechanicsFrfModel(setting.balance, setting.load_mass_kg,
                                           setting.load_changer_coupled)
     positive = [n for n in names if configured[n] > 0.0]
@@ -236,17 +244,138 @@ def frequency_domain_stage(setting: Setting, channels: Mapping[str, np.ndarray],
         fixed.update(again.fixed)
         choice = FreeSetChoice(again.free, fixed, again.analysis, choice.initial_analysis)
     if not choice.free:
-        return configured, None, choice
+        return configured, None, choice, None
     fixed_now = {n: configured[n] for n in choice.fixed}
     at = dict(start, **fixed_now)
     report('greybox', 0.05, f'frequency-domain fit of {list(choice.free)}')
     lower = {n: lower_factor * configured[n] for n in choice.free}
     fit = balance_frf.fit_frfs(model, frfs, at, choice.free, lower=lower,
                                upper={n: 1e3 * configured[n] for n in choice.free})
-    fit = probe_ambiguity(model, frfs, fit, at, configured, verdict, report, lower)
+    pending = None
+    if executor is not None:
+        pending = PendingProbe.submit(executor, model, frfs, fit, at, configured, lower)
+        if pending is not None:
+            report('greybox', 0.07, 'probe for a second optimum (restarts of the '
+                   'frequency-domain fit) in a worker process')
+    if pending is None:
+        fit = probe_ambiguity(model, frfs, fit, at, configured, verdict, report, lower)
     out = dict(at, **fixed_now)
     out.update(fit.values)
-    return out, fit, choice
+    return out, fit, choice, pending
+
+
+class Offload(Protocol):
+    """Where work can run beside the caller: :class:`concurrent.futures.Executor`'s ``submit``."""
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> Future:
+        """
+        Run ``fn(*args)`` elsewhere.
+
+        Parameters
+        ----------
+        fn : callable
+            A module-level function (picklable for a process pool).
+        *args
+            Its arguments.
+
+        Returns
+        -------
+        concurrent.futures.Future
+            Its result.
+        """
+
+
+def probe_elsewhere(model: balance_frf.MechanicsFrfModel, frfs: Sequence[Any],
+                    fit: balance_frf.FrfFit, values: Dict[str, float],
+                    configured: Mapping[str, float], lower: Optional[Mapping[str, float]]
+                    ) -> Tuple[Optional[balance_frf.FrfFit], List[str]]:
+    """
+    :func:`probe_ambiguity` as a task for another process.
+
+    Parameters
+    ----------
+    model, frfs, fit, values, configured, lower
+        As for :func:`probe_ambiguity`.
+
+    Returns
+    -------
+    better : FrfFit or None
+        The clearly better optimum found, None when ``fit`` stays the best.
+    failures : list of str
+        The failure the probe reports (two optima that fit equally well).
+    """
+    verdict = Verdict()
+    best = probe_ambiguity(model, frfs, fit, values, configured, verdict,
+                           lambda step, fraction, message: None, lower)
+    return (None if best is fit else best), list(verdict.failures)
+
+
+@dataclasses.dataclass
+class PendingProbe:
+    """
+    The probe for a second optimum, running elsewhere while the time-domain fit runs.
+
+    The time-domain fit starts from the frequency-domain fit before the probe has ended (the
+    probe took 0.2-0.35 s of the main job's critical path). Its outcome decides what happens
+    after: no better optimum (the usual case) leaves the fit as it is, exactly what the
+    probe in line gives; a failure is added to the verdict; a clearly better optimum makes
+    :func:`fit_balance` run again in line, from it.
+
+    Attributes
+    ----------
+    future : concurrent.futures.Future
+        The task (:func:`probe_elsewhere`).
+    args : tuple
+        Its arguments, to run it here if the other process fails.
+    """
+
+    future: Future
+    args: Tuple[Any, ...]
+
+    @classmethod
+    def submit(cls, executor: Offload, *args: Any) -> Optional['PendingProbe']:
+        """
+        Start the probe on ``executor``; None if it cannot take it (the probe then runs here).
+
+        Parameters
+        ----------
+        executor : Offload
+            Where to run it.
+        *args
+            ``model, frfs, fit, values, configured, lower`` of :func:`probe_elsewhere`.
+
+        Returns
+        -------
+        PendingProbe or None
+            The running probe.
+        """
+        try:
+            return cls(executor.submit(probe_elsewhere, *args), tuple(args))
+        except Exception:                   # noqa: B902 (a pool shut down or broken)
+            return None
+
+    def outcome(self, timeout_s: float = 300.0
+                ) -> Tuple[Optional[balance_frf.FrfFit], List[str]]:
+        """
+        The probe's result (:func:`probe_elsewhere`); computed here if the other process failed.
+
+        Parameters
+        ----------
+        timeout_s : float
+            Longest wait for the other process [s].
+
+        Returns
+        -------
+        better : FrfFit or None
+            A clearly better optimum, or None.
+        failures : list of str
+            Failures to add to the verdict.
+        """
+        try:
+            return self.future.result(timeout=timeout_s)
+        except Exception:                   # noqa: B902 (a worker died, a pickling error)
+            self.future.cancel()
+            return probe_elsewhere(*self.args)
 
 
 def probe_ambiguity(model: balance_frf.MechanicsFrfModel, frfs: Sequence[Any],
@@ -660,7 +789,8 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
                 modes: Sequence[Tuple[float, float, float]],
                 anti_resonance: Optional[Tuple[float, float, float]], gcfg: Any,
                 band_Hz: Tuple[float, float], hold: str, report: Progress,
-                on_fit: Optional[Callable[[Any], None]] = None
+                on_fit: Optional[Callable[[Any], None]] = None,
+                executor: Optional[Offload] = None
                 ) -> Tuple[Optional[BalanceGreyboxResult], Verdict]:
     """
     The whole grey-box identification (see the module docstring).
@@ -688,6 +818,9 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
     on_fit : callable, optional
         Called once the time-domain fit has ended, before its residual tests and checks,
         with a :class:`FittedSignals` (e.g. to draw the fit's figures meanwhile).
+    executor : Offload, optional
+        Runs the frequency-domain fit's probe for a second optimum while the time-domain fit
+        runs (:class:`PendingProbe`); the result is the same as without.
 
     Returns
     -------
@@ -707,15 +840,15 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
         sources[n] = 'options (greybox.initial)'
     dynamic = [n for n in requested if n in DYNAMIC_NAMES]
     start = {n: configured_value(setting, n) for n in requested}
-    fd, choice = None, None
+    fd, choice, probe = None, None, None
     if gcfg.initialise_from_frf and dynamic:
         threshold = min(MAX_RELATIVE_UNCERTAINTY, gcfg.mass_relative_uncertainty or
                         MAX_RELATIVE_UNCERTAINTY)
-        solved, fd, choice = frequency_domain_stage(setting, channels, frf_jobs, modes,
-                                                    anti_resonance, dynamic, band_Hz, hold,
-                                                    verdict, report, threshold,
-                                                    gcfg.relative_bounds[0])
+        solved, fd, choice, probe = frequency_domain_stage(
+            setting, channels, frf_jobs, modes, anti_resonance, dynamic, band_Hz, hold,
+            verdict, report, threshold, gcfg.relative_bounds[0], executor)
         start.update(solved)
+    probe_at = len(verdict.failures)    # where the probe in line puts its failure
     free = [n for n in requested if choice is None or n not in choice.fixed]
     if choice is not None:
         for n, reason in choice.fixed.items():
@@ -781,7 +914,17 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
                           residual_tests=not gcfg.noise_weighting)
     except (IdentificationError, ValueError, RuntimeError) as exc:
         verdict.failures.append(f'greybox: {exc}')
+        if probe is not None:           # what the probe in line would have added
+            verdict.failures[probe_at:probe_at] = probe.outcome()[1]
         return None, verdict
+    if probe is not None:
+        better, failures = probe.outcome()
+        if better is not None:
+            # A clearly better optimum: the time-domain fit started from the wrong one. The
+            # whole grey-box again, in line, as without an executor.
+            return fit_balance(setting, channels, sections, frf_jobs, modes, anti_resonance,
+                               gcfg, band_Hz, hold, report, on_fit)
+        verdict.failures[probe_at:probe_at] = failures
     fitted = model.balance(fit.parameters)
     lin = linearise(loaded(fitted.mechanics, setting.load_mass_kg,
                            setting.load_changer_coupled))

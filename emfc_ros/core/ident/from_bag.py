@@ -210,8 +210,8 @@ def plant_settings(bag_path: Path) -> Dict[str, Any]:
 def identify_bag(bag_path: Path, options: Optional[Mapping[str, Any]] = None,
                  namespace: Optional[str] = None, progress: Optional[Progress] = None,
                  streams: Optional[Mapping[str, Any]] = None,
-                 on_step: Optional[Callable[[str, Any], None]] = None
-                 ) -> Tuple[Any, Dict[str, Any]]:
+                 on_step: Optional[Callable[[str, Any], None]] = None,
+                 executor: Optional[Any] = None) -> Tuple[Any, Dict[str, Any]]:
     """
     Read a bag back and identify the balance from it.
 
@@ -228,7 +228,7 @@ def identify_bag(bag_path: Path, options: Optional[Mapping[str, Any]] = None,
         ``progress(step, fraction, message)``.
     streams : Mapping, optional
         The bag's streams if the caller has read them already (:func:`read_streams`).
-    on_step : callable, optional
+    on_step, executor : optional
         Passed to :func:`~emfc_ros.core.ident.pipeline.identify`.
 
     Returns
@@ -276,7 +276,7 @@ def identify_bag(bag_path: Path, options: Optional[Mapping[str, Any]] = None,
            + (f' from device sample {offset}' if offset else ''))
     result = pipeline.identify(recording, sections, options,
                                sample_rate_Hz=measurements.sample_rate_Hz, progress=progress,
-                               on_step=on_step)
+                               on_step=on_step, executor=executor)
     info = {'namespace': ns, 'samples': n,
             'sample_rate_Hz': measurements.sample_rate_Hz, 'sections': sections,
             'excitation_offset_samples': offset,

@@ -269,8 +269,8 @@ class IdentificationResult:
 def identify(recording: Any, experiment_sections: Sequence[Any],
              config: Optional[Any] = None, *, sample_rate_Hz: Optional[float] = None,
              progress: Optional[Progress] = None,
-             on_step: Optional[Callable[[str, 'IdentificationResult'], None]] = None
-             ) -> IdentificationResult:
+             on_step: Optional[Callable[[str, 'IdentificationResult'], None]] = None,
+             executor: Optional[Any] = None) -> IdentificationResult:
     """
     Identify the balance from a recorded experiment.
 
@@ -300,6 +300,11 @@ def identify(recording: Any, experiment_sections: Sequence[Any],
         its residual tests and checks, with ``view.frfs`` (copies carrying the model's
         responses) and ``view.greybox`` (a
         :class:`~emfc_ros.core.ident.balance_fit.FittedSignals`).
+    executor : concurrent.futures.Executor, optional
+        Another process to run part of the work in while this one goes on (anything with
+        ``submit(fn, *args)``, :class:`~emfc_ros.core.ident.balance_fit.Offload`): the
+        grey-box's probe for a second optimum runs there during the time-domain fit. The
+        result is the same as without.
 
     Returns
     -------
@@ -357,7 +362,7 @@ def identify(recording: Any, experiment_sections: Sequence[Any],
         done('static', result)
     if cfg.greybox.enabled:
         start = time.perf_counter()
-        _greybox_step(result, channels, spans, report, done)
+        _greybox_step(result, channels, spans, report, done, executor)
         result.timings_s['greybox'] = time.perf_counter() - start
         done('greybox', result)
     report('done', 1.0, f'identification finished with {len(result.warnings)} warning(s)')
@@ -706,7 +711,8 @@ def _static_step(result: IdentificationResult, channels: Mapping[str, np.ndarray
 @with_single_blas_thread
 def _greybox_step(result: IdentificationResult, channels: Mapping[str, np.ndarray],
                   spans: Sequence[Span], report: Progress,
-                  done: Optional[Callable[[str, Any], None]] = None) -> None:
+                  done: Optional[Callable[[str, Any], None]] = None,
+                  executor: Optional[Any] = None) -> None:
     cfg = result.config
     gcfg = cfg.greybox
     # Default: every section but the static staircases, which drive the lever to its stops.
@@ -752,7 +758,7 @@ def _greybox_step(result: IdentificationResult, channels: Mapping[str, np.ndarra
     out, verdict = balance_fit.fit_balance(
         setting, channels, [(s.name, s.first_sample_index, s.n_samples) for s in chosen],
         jobs, modes, anti, gcfg, (cfg.frf.frequency_min_Hz, cfg.frf.frequency_max_Hz),
-        cfg.frf.hold_compensation, report, on_fit=fitted)
+        cfg.frf.hold_compensation, report, on_fit=fitted, executor=executor)
     result.warnings.extend(verdict.warnings)
     result.failures.extend(verdict.failures)
     if out is None:
