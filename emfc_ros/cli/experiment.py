@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import gc
 import json
 import os
 from pathlib import Path
@@ -32,6 +31,7 @@ from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 import yaml
 
 from emfc_ros.core.errors import ConfigError
+from emfc_ros.core.heap import COMMAND_HEAP
 from emfc_ros.core.paths import config_file
 from emfc_ros.core.run_plan import load_plan, runner_state_wall_rate_Hz, RunPlan
 from emfc_ros.core.stream_counts import CUSTOM_DATA_KEY, markdown, problems
@@ -61,25 +61,6 @@ SIMULATOR_WINDOW_BLOCKS = {'events': 1, 'single_threaded': 8}
 #: empty numba cache, 15 s and more) when a run fails early or Ctrl-C stops it, and the
 #: command does not wait for that (it leaves with os._exit, which ends the thread).
 WARM_UP_JOIN_S = 5.0
-#: Whether the run may freeze its heap (:func:`freeze_heap`): set by :func:`console_main`, the
-#: command's own process; a caller of :func:`main` (a test, a script) keeps its collector.
-_FREEZE_HEAP = False
-
-
-def freeze_heap() -> None:
-    """
-    Move everything allocated so far out of the garbage collector's sight (:func:`gc.freeze`).
-
-    The run's imports (rclpy, numba, scipy, the nodes) leave a few hundred thousand objects
-    that live until the process ends; every full collection walked them all again, most of
-    them while the imports went on (measured: 0.14-0.22 s of collector time in a warm run, of
-    which 0.12-0.15 s full collections). :func:`console_main` turns the collector off for the
-    imports; the first call here freezes what they made and turns it on again. Only in the
-    command's own process (:data:`_FREEZE_HEAP`).
-    """
-    if _FREEZE_HEAP:
-        gc.freeze()
-        gc.enable()
 
 
 class Phases:
@@ -647,7 +628,7 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
                 raise RuntimeError(f'service {ns}/{name} did not answer in {timeout_s} s')
             return future.result()
 
-        freeze_heap()                   # the imports and the nodes stay to the end
+        COMMAND_HEAP.settled()          # the imports and the nodes stay to the end
         phases.start('discovery')
         # From here every wait polls Ctrl-C: a request stops the run at a clean point.
         ctrl_c.check()
@@ -916,7 +897,7 @@ def _run_pipeline(plan: RunPlan, info: dict, streams: dict, out: Path,
     from emfc_ros.core.ident.from_bag import identify_bag
 
     phases.start('identify')
-    freeze_heap()                       # the identification's imports (the warm-up thread's)
+    COMMAND_HEAP.settled()              # the identification's imports (the warm-up thread's)
     folder = out / 'identification'
 
     def step_done(step: str, partial: Any) -> None:
@@ -1176,11 +1157,11 @@ def console_main() -> None:
     it is written, the plot workers stopped); the interpreter's own teardown of the loaded
     libraries (numba's LLVM, scipy, the DDS middleware) took 0.4-0.6 s after the last line
     was printed (measured against :func:`os._exit`), so the command flushes its output and
-    leaves with :func:`os._exit`. Called as a function (:func:`main`) nothing of this applies.
+    leaves with :func:`os._exit`. The process's garbage collector is set for a short
+    command (:mod:`emfc_ros.core.heap`). Called as a function (:func:`main`) nothing of this
+    applies.
     """
-    global _FREEZE_HEAP
-    _FREEZE_HEAP = True
-    gc.disable()                        # until the imports are done (freeze_heap)
+    COMMAND_HEAP.start()                # the collector off for the imports
     code = main()
     sys.stdout.flush()
     sys.stderr.flush()

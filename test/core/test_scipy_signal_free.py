@@ -14,7 +14,7 @@ import pytest
 from scipy import signal, special, stats
 
 from emfc_ros.core.ident.frf import window_samples
-from emfc_ros.core.ident.metrics import correlate_full
+from emfc_ros.core.ident.metrics import correlation_at_lags
 from emfc_ros.core.ident.modal_filter import modal_pair
 from emfc_ros.core.report.exports import ss_to_tf, tf_to_ss
 
@@ -30,12 +30,12 @@ def test_other_windows_come_from_scipy():
                                   signal.get_window(('tukey', 0.25), 64))
 
 
-@pytest.mark.parametrize('na, nb', [(1000, 1000), (1000, 37), (5, 9), (1, 1)])
-def test_full_correlation_is_scipys(na, nb):
-    rng = np.random.default_rng(na * 31 + nb)
-    a, b = rng.normal(size=na), rng.normal(size=nb)
-    ref = signal.correlate(a, b, mode='full', method='direct')
-    np.testing.assert_allclose(correlate_full(a, b), ref, rtol=0,
+@pytest.mark.parametrize('n, max_lag', [(1000, 25), (1000, 999), (5, 4), (1, 0), (40000, 50)])
+def test_the_correlation_at_lags_is_scipys(n, max_lag):
+    rng = np.random.default_rng(n * 31 + max_lag)
+    a, b = rng.normal(size=n), rng.normal(size=n)
+    ref = signal.correlate(a, b, mode='full', method='direct')[n - 1 - max_lag:n + max_lag]
+    np.testing.assert_allclose(correlation_at_lags(a, b, max_lag), ref, rtol=0,
                                atol=1e-12 * np.max(np.abs(ref)))
 
 
@@ -90,3 +90,11 @@ def test_the_runners_path_imports_neither_scipy_signal_nor_stats():
                          timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == '[]', out.stdout
+
+
+def test_the_correlation_at_lags_refuses_what_it_cannot_compute():
+    from emfc_ros.core.ident.errors import IdentificationError
+    with pytest.raises(IdentificationError, match='lengths differ'):
+        correlation_at_lags(np.ones(10), np.ones(9), 2)
+    with pytest.raises(IdentificationError, match='max_lag 10 is not in 0..9'):
+        correlation_at_lags(np.ones(10), np.ones(10), 10)

@@ -15,7 +15,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import fft as spfft
 from scipy import special
 
 from emfc_ros.core.ident.errors import IdentificationError
@@ -76,27 +75,43 @@ def fit_percent(measured: np.ndarray, simulated: np.ndarray) -> np.ndarray:
     return float(fit) if np.ndim(fit) == 0 else fit
 
 
-def correlate_full(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def correlation_at_lags(a: np.ndarray, b: np.ndarray, max_lag: int) -> np.ndarray:
     """
-    Full cross-correlation of two real records by FFT.
+    Cross-correlation of two equally long real records at the lags ``-max_lag..max_lag``.
 
-    What ``scipy.signal.correlate(a, b, mode='full', method='fft')`` returns (to rounding),
-    with scipy.fft alone (scipy.signal takes about a second to import).
+    One dot product per lag: for the 25 or 50 lags of a residual test on records of 10^5
+    samples it took a tenth of the time of the full correlation by FFT it replaced (the
+    report's residual figures and the fit's residual tests) and has no FFT round-off.
 
     Parameters
     ----------
-    a, b : ndarray
-        1-D real records.
+    a, b : ndarray, shape (n,)
+        The records.
+    max_lag : int
+        Largest absolute lag [samples], below ``n``.
 
     Returns
     -------
-    ndarray
-        ``c[k + b.size - 1] = sum_n a[n + k] b[n]`` for lags ``k = -(b.size - 1) .. a.size - 1``.
+    ndarray, shape (2 max_lag + 1,)
+        ``c[k + max_lag] = sum_n a[n + k] b[n]`` for ``k = -max_lag .. max_lag`` (what
+        ``scipy.signal.correlate(a, b, mode='full')[n - 1 - max_lag:n + max_lag]`` gives).
+
+    Raises
+    ------
+    IdentificationError
+        If the lengths differ or ``max_lag`` is not below them.
     """
-    n = a.size + b.size - 1
-    m = spfft.next_fast_len(n, real=True)
-    r = spfft.irfft(spfft.rfft(a, m) * np.conj(spfft.rfft(b, m)), m)
-    return np.concatenate((r[m - (b.size - 1):], r[:a.size]))
+    a = np.asarray(a, dtype=float).ravel()
+    b = np.asarray(b, dtype=float).ravel()
+    n = a.size
+    if b.size != n:
+        raise IdentificationError(f'records of {n} and {b.size} samples: the lengths differ')
+    if not 0 <= max_lag < n:
+        raise IdentificationError(f'max_lag {max_lag} is not in 0..{n - 1}')
+    out = np.empty(2 * max_lag + 1)
+    for k in range(-max_lag, max_lag + 1):
+        out[k + max_lag] = a[k:] @ b[:n - k] if k >= 0 else a[:n + k] @ b[-k:]
+    return out
 
 
 def _band(n: int, confidence: float) -> float:
@@ -134,7 +149,7 @@ def whiteness_test(residual: np.ndarray, max_lag: int = 25,
         raise IdentificationError(f'residual of {e.size} samples is too short for max_lag '
                                   f'{max_lag}')
     e = e - e.mean()
-    r = correlate_full(e, e)[e.size - 1:e.size + max_lag]
+    r = correlation_at_lags(e, e, max_lag)[max_lag:]
     if r[0] <= 0.0:
         raise IdentificationError('the residual is identically zero')
     values = r[1:] / r[0]
@@ -179,9 +194,7 @@ def input_correlation_test(residual: np.ndarray, input: np.ndarray, max_lag: int
     norm = np.sqrt(float(e @ e) * float(u @ u))
     if norm <= 0.0:
         raise IdentificationError('residual or input is constant')
-    full = correlate_full(e, u)
-    mid = e.size - 1
-    values = full[mid - max_lag:mid + max_lag + 1] / norm
+    values = correlation_at_lags(e, u, max_lag) / norm
     bound = _band(e.size, confidence)
     return CorrelationTest(np.arange(-max_lag, max_lag + 1), values, bound,
                            float(np.mean(np.abs(values) <= bound)))

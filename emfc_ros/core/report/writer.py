@@ -11,15 +11,11 @@ from typing import Any, Dict, List, Optional, Union
 
 import yaml
 
-from emfc_ros.core.report.background import draw, PlotPool, report_jobs
+from emfc_ros.core.report.background import draw, PlotPool, report_jobs, slowest_first
 from emfc_ros.core.report.exports import write_exports
 from emfc_ros.core.report.plots import matplotlib_available
 from emfc_ros.core.report.summary import summary_markdown
 
-#: Order in which the pool gets the figures: the slowest to draw first (measured: the residual
-#: analysis with its three panels, the time series, the Bode plots), so that the last figure
-#: done is a quick one.
-SUBMIT_ORDER = {'resid': 0, 'time': 1, 'bode': 2, 'pole_zero': 3, 'static': 4, 'coherence': 5}
 #: libyaml's emitter when PyYAML has it (same output, several times faster).
 _DUMPER = getattr(yaml, 'CSafeDumper', yaml.SafeDumper)
 
@@ -67,7 +63,7 @@ def write_report(result: Any, out_dir: Union[str, Path], plots: bool = True,
     jobs = report_jobs(result, out) if plots else []
     if pool is not None and jobs:
         # drawn while the files below are written, the slowest first
-        pool.submit(sorted(jobs, key=lambda job: SUBMIT_ORDER.get(job.kind, len(SUBMIT_ORDER))))
+        pool.submit(slowest_first(jobs))
     results = out / 'results.yaml'
     with open(results, 'w', encoding='utf-8') as stream:
         yaml.dump(result.to_dict(), stream, Dumper=_DUMPER, sort_keys=False,
