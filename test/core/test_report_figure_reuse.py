@@ -1,14 +1,21 @@
 """
-Figures drawn into reused axes are the figures drawn fresh, pixel for pixel (issue 14).
+The report's figures as the plot workers draw them, against the figures of the result.
 
-A plot worker keeps one figure per kind and layout (``plots.REUSE_FIGURES``) and wipes it for
-the next figure of that kind. Whatever a figure leaves behind (limits, scales, locators,
-texts, legends) must not show in the next: every figure of a full grey-box report, drawn in
-an order that mixes kinds and data, is compared with the same figure drawn in fresh axes.
+Reused axes (issue 14): a plot worker keeps one figure per kind and layout
+(``plots.REUSE_FIGURES``) and wipes it for the next figure of that kind. Whatever a figure
+leaves behind (limits, scales, locators, texts, legends) must not show in the next: every
+figure of a full grey-box report, drawn in an order that mixes kinds and data, is compared
+with the same figure drawn in fresh axes.
+
+Figures drawn early: the model's figures (Bode diagrams with the model, the pole-zero map)
+are queued once the time-domain fit has converged, before it checks its derivatives
+(``on_step('greybox_model', ...)``); they must be the result's figures (same file, same key,
+so the pool does not draw them again, and the same picture).
 """
 
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import matplotlib.image as mimage
 import numpy as np
@@ -26,22 +33,33 @@ TRAJECTORY = Path(__file__).resolve().parents[2] / 'config' / 'identification_tr
 
 
 @pytest.fixture(scope='module')
-def jobs(tmp_path_factory):
-    """Every figure of a grey-box report of an off-nominal balance (0.2x trajectory)."""
+def report(tmp_path_factory):
+    """A grey-box report of an off-nominal balance (0.2x trajectory): result, figures, steps."""
     nominal = BalanceParameters()
     truth = nominal.with_mechanics(c1_Nm_per_rad=1.04 * nominal.mechanics.c1_Nm_per_rad,
                                    d2_Nms_per_rad=0.95 * nominal.mechanics.d2_Nms_per_rad)
     doc = yaml.safe_load(TRAJECTORY.read_text())
     exp = experiment_from_config(time_scaled_mapping(find_experiment_mapping(doc), 0.2))
     recording = simulate_experiment(truth, exp, seed=61307)
-    result = identify(recording, section_table(recording),
-                      {'load_mass_kg': recording.load_mass_kg, 'load_changer_coupled': True})
-    assert result.greybox is not None
     out = tmp_path_factory.mktemp('figures')
+    steps = []
+
+    def on_step(step, partial):
+        steps.append((step, background.step_jobs(step, partial, out)))
+
+    result = identify(recording, section_table(recording),
+                      {'load_mass_kg': recording.load_mass_kg, 'load_changer_coupled': True},
+                      on_step=on_step)
+    assert result.greybox is not None
     found = background.report_jobs(result, out)
     # every kind drawn into reused axes (the static figures are always drawn fresh)
     assert {job.kind for job in found} >= {'bode', 'coherence', 'time', 'resid', 'pole_zero'}
-    return found
+    return SimpleNamespace(result=result, jobs=found, steps=steps)
+
+
+@pytest.fixture(scope='module')
+def jobs(report):
+    return report.jobs
 
 
 def _draw_all(jobs, folder, reuse, monkeypatch):
@@ -98,3 +116,19 @@ def test_figures_of_one_layout_share_one_figure(jobs, tmp_path):
     kept = [key for key in plots._KEPT if key[0] == 'bode']
     assert len(kept) == 1
     plots._KEPT.clear()
+
+
+def test_the_models_figures_are_queued_early_and_are_the_results(report, tmp_path):
+    names = [step for step, _ in report.steps]
+    assert names.index('greybox_model') < names.index('greybox_fit') < names.index('greybox')
+    early = dict(report.steps)['greybox_model']
+    assert sorted(job.kind for job in early) == ['bode'] * len(report.result.frfs) + [
+        'pole_zero']
+    final = {job.path: job for job in report.jobs}
+    for job in early:
+        # the same file and key: the pool does not draw it again at 'greybox_fit'
+        assert (job.path, job.kind, job.key) == (final[job.path].path, final[job.path].kind,
+                                                 final[job.path].key)
+        a = background.draw(replace(job, path=tmp_path / ('early_' + job.path.name)))
+        b = background.draw(replace(final[job.path], path=tmp_path / job.path.name))
+        assert np.array_equal(mimage.imread(a), mimage.imread(b)), job.path.name

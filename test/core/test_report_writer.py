@@ -96,8 +96,9 @@ def test_plots_by_the_worker_pool_are_the_report_s_plots(tmp_path):
         res = identify(rec.recording, rec.section_table, options, on_step=step_done)
         by_pool = write_report(res, tmp_path / 'pool', pool=pool)
         assert pool.errors == []
-    # the grey-box's figures were queued when its time-domain fit ended
-    assert steps == ['frf', 'tf_fit', 'greybox_fit', 'greybox']
+    # the model's figures were queued when the time-domain fit converged, the grey-box's
+    # others when it ended
+    assert steps == ['frf', 'tf_fit', 'greybox_model', 'greybox_fit', 'greybox']
     in_process = write_report(res, tmp_path / 'here')
     names = [p.name for p in in_process['plots']]
     assert [p.name for p in by_pool['plots']] == names

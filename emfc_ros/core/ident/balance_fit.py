@@ -790,7 +790,8 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
                 anti_resonance: Optional[Tuple[float, float, float]], gcfg: Any,
                 band_Hz: Tuple[float, float], hold: str, report: Progress,
                 on_fit: Optional[Callable[[Any], None]] = None,
-                executor: Optional[Offload] = None
+                executor: Optional[Offload] = None,
+                on_model: Optional[Callable[[Any, Dict[str, float]], None]] = None
                 ) -> Tuple[Optional[BalanceGreyboxResult], Verdict]:
     """
     The whole grey-box identification (see the module docstring).
@@ -821,6 +822,12 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
     executor : Offload, optional
         Runs the frequency-domain fit's probe for a second optimum while the time-domain fit
         runs (:class:`PendingProbe`); the result is the same as without.
+    on_model : callable, optional
+        Called as ``on_model(linear_model, parameters)`` where the time-domain fit has
+        converged, before its derivatives are checked (``fit_greybox``'s ``on_candidate``):
+        the fitted mechanics linearised at rest and the fit's parameter values, as the
+        result will hold them if the check passes (usually; else the result differs and
+        ``on_fit`` says so), e.g. to draw the model's Bode diagrams meanwhile.
 
     Returns
     -------
@@ -906,12 +913,22 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
     if gcfg.noise_weighting:
         weights, transients = noise_weights(model, {s.name: s.initial for s in specs}, data,
                                             setting)
+
+    def linearised(parameters: Mapping[str, float]) -> Any:
+        fitted = model.balance(parameters)
+        return fitted, linearise(loaded(fitted.mechanics, setting.load_mass_kg,
+                                        setting.load_changer_coupled))
+
+    def candidate(parameters: Dict[str, float]) -> None:
+        on_model(linearised(parameters)[1], parameters)
+
     try:
         fit = fit_greybox(simulate, data, specs, method=gcfg.method, options=options,
                           max_nfev=max_nfev, noise_weights=weights, transients=transients,
                           tolerance=TIME_DOMAIN_TOLERANCE, workers=simulation_workers(model),
                           output_derivatives=model.output_derivatives,
-                          residual_tests=not gcfg.noise_weighting)
+                          residual_tests=not gcfg.noise_weighting,
+                          on_candidate=candidate if on_model is not None else None)
     except (IdentificationError, ValueError, RuntimeError) as exc:
         verdict.failures.append(f'greybox: {exc}')
         if probe is not None:           # what the probe in line would have added
@@ -923,11 +940,9 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
             # A clearly better optimum: the time-domain fit started from the wrong one. The
             # whole grey-box again, in line, as without an executor.
             return fit_balance(setting, channels, sections, frf_jobs, modes, anti_resonance,
-                               gcfg, band_Hz, hold, report, on_fit)
+                               gcfg, band_Hz, hold, report, on_fit, on_model=on_model)
         verdict.failures[probe_at:probe_at] = failures
-    fitted = model.balance(fit.parameters)
-    lin = linearise(loaded(fitted.mechanics, setting.load_mass_kg,
-                           setting.load_changer_coupled))
+    fitted, lin = linearised(fit.parameters)
     record = model.simulate_record(fit.parameters)
     signals = FittedSignals(fit, lin, *section_signals(channels, sections, record,
                                                        setting.sample_rate_Hz))

@@ -445,7 +445,9 @@ def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
                 transients: Optional[Sequence[np.ndarray]] = None,
                 tolerance: float = 1.0e-8, workers: int = 1,
                 output_derivatives: Optional[Derivatives] = None,
-                residual_tests: bool = True) -> GreyboxResult:
+                residual_tests: bool = True,
+                on_candidate: Optional[Callable[[Dict[str, float]], None]] = None
+                ) -> GreyboxResult:
     """
     Fit the free parameters of a simulation to measured sections.
 
@@ -502,6 +504,13 @@ def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
     residual_tests : bool
         Run the whiteness and input-correlation tests of each section (False: NaN, for a
         caller that tests the residuals its own way).
+    on_candidate : callable, optional
+        ``method='gauss_newton'`` with ``output_derivatives``: called with all parameter
+        values (as :attr:`GreyboxResult.parameters` would hold them) where the iteration has
+        converged, before the derivatives are checked against the simulation. The fit
+        usually ends there (the result then holds exactly these values), so a caller can
+        start on what depends only on the values (e.g. the model's figures) while the check
+        runs; when the check fails the iteration goes on and the result differs.
 
     Returns
     -------
@@ -552,7 +561,8 @@ def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
         success, reason = bool(res.status > 0), str(res.message)
     elif method == 'gauss_newton':
         gn = _gauss_newton(problem, theta0, r0, lower, upper, scales, tolerance,
-                           max_nfev or 100 * (theta0.size + 1), workers, uncertainty)
+                           max_nfev or 100 * (theta0.size + 1), workers, uncertainty,
+                           on_candidate)
         theta, jac, r, success, reason, kind, check = gn
         if jac is not None:
             jacobian_method = JACOBIAN_METHODS[kind]
@@ -720,7 +730,8 @@ def _check_derivatives(problem: _Problem, theta: np.ndarray, jac: np.ndarray, co
 
 def _gauss_newton(problem: _Problem, theta0: np.ndarray, r0: np.ndarray, lower: np.ndarray,
                   upper: np.ndarray, scales: np.ndarray, tolerance: float, budget: int,
-                  workers: int, central_at_end: bool
+                  workers: int, central_at_end: bool,
+                  on_candidate: Optional[Callable[[Dict[str, float]], None]] = None
                   ) -> Tuple[np.ndarray, Optional[np.ndarray], np.ndarray, bool, str, str,
                              float]:
     """
@@ -796,6 +807,8 @@ def _gauss_newton(problem: _Problem, theta0: np.ndarray, r0: np.ndarray, lower: 
                 reason, success = converged, True
                 break
             if kind == 'derivatives' and not checked:
+                if on_candidate is not None:    # where the fit ends if the check passes
+                    on_candidate(problem.params(theta))
                 check = _check_derivatives(problem, theta, jac, cov, scales, lower, upper,
                                            workers)
                 checked = True

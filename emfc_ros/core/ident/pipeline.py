@@ -299,7 +299,11 @@ def identify(recording: Any, experiment_sections: Sequence[Any],
         ``on_step('greybox_fit', view)`` once the grey-box's time-domain fit has ended, before
         its residual tests and checks, with ``view.frfs`` (copies carrying the model's
         responses) and ``view.greybox`` (a
-        :class:`~emfc_ros.core.ident.balance_fit.FittedSignals`).
+        :class:`~emfc_ros.core.ident.balance_fit.FittedSignals`); before that, as
+        ``on_step('greybox_model', view)`` once the fit has converged and its derivatives
+        are being checked, with the model alone (``view.frfs`` with the model's responses,
+        ``view.greybox.linear_model`` and ``view.greybox.fit.parameters``: what the result
+        holds if the check passes).
     executor : concurrent.futures.Executor, optional
         Another process to run part of the work in while this one goes on (anything with
         ``submit(fn, *args)``, :class:`~emfc_ros.core.ident.balance_fit.Offload`): the
@@ -362,7 +366,7 @@ def identify(recording: Any, experiment_sections: Sequence[Any],
         done('static', result)
     if cfg.greybox.enabled:
         start = time.perf_counter()
-        _greybox_step(result, channels, spans, report, done, executor)
+        _greybox_step(result, channels, spans, report, on_step, executor)
         result.timings_s['greybox'] = time.perf_counter() - start
         done('greybox', result)
     report('done', 1.0, f'identification finished with {len(result.warnings)} warning(s)')
@@ -743,22 +747,33 @@ def _greybox_step(result: IdentificationResult, channels: Mapping[str, np.ndarra
                     channels['coil_setpoint_V'][s.slice],
                     channels['load_changer_setpoint_V'][s.slice]))
 
+    def with_model(linear_model: Any) -> List[FrfResult]:
+        for r in result.frfs:
+            responses[r.name] = linear_model.frequency_response(
+                r.frd.frequency_Hz, r.input).response_m_per_N
+        return [dataclasses.replace(r, model_response=responses[r.name]) for r in result.frfs]
+
+    def model_ready(linear_model: Any, parameters: Dict[str, float]) -> None:
+        # The time-domain fit has converged (its derivatives are being checked): the
+        # figures of the model alone are drawn meanwhile (the final ones replace them if the
+        # fit goes on).
+        view = SimpleNamespace(fit=SimpleNamespace(parameters=parameters),
+                               linear_model=linear_model)
+        done('greybox_model', SimpleNamespace(frfs=with_model(linear_model), greybox=view))
+
     def fitted(signals: Any) -> None:
         # The time-domain fit has ended: its figures are drawn while its residual tests and
         # checks run (a copy of each FRF carries the model; the result gets it at the end).
-        for r in result.frfs:
-            responses[r.name] = signals.linear_model.frequency_response(
-                r.frd.frequency_Hz, r.input).response_m_per_N
+        frfs = with_model(signals.linear_model)
         inputs(signals)
         if done is not None:
-            done('greybox_fit', SimpleNamespace(
-                frfs=[dataclasses.replace(r, model_response=responses[r.name])
-                      for r in result.frfs], greybox=signals))
+            done('greybox_fit', SimpleNamespace(frfs=frfs, greybox=signals))
 
     out, verdict = balance_fit.fit_balance(
         setting, channels, [(s.name, s.first_sample_index, s.n_samples) for s in chosen],
         jobs, modes, anti, gcfg, (cfg.frf.frequency_min_Hz, cfg.frf.frequency_max_Hz),
-        cfg.frf.hold_compensation, report, on_fit=fitted, executor=executor)
+        cfg.frf.hold_compensation, report, on_fit=fitted, executor=executor,
+        on_model=model_ready if done is not None else None)
     result.warnings.extend(verdict.warnings)
     result.failures.extend(verdict.failures)
     if out is None:

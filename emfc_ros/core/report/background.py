@@ -124,12 +124,15 @@ def step_jobs(step: str, result: Any, out: Path) -> List[PlotJob]:
     Parameters
     ----------
     step : str
-        ``'frf'`` (coherences), ``'static'`` (static characteristics) or ``'greybox_fit'``
-        (every figure of the grey-box fit: Bode diagrams with the model, time series,
-        residual analyses, the pole-zero map; drawn while the fit's checks and residual
-        tests run); others give none.
+        ``'frf'`` (coherences), ``'static'`` (static characteristics), ``'greybox_model'``
+        (the figures of the fitted model alone: Bode diagrams with the model and the
+        pole-zero map, drawn while the fit checks its derivatives) or ``'greybox_fit'``
+        (every figure of the grey-box fit: those, time series and residual analyses; drawn
+        while the fit's residual tests and checks run; a figure of ``'greybox_model'`` with
+        the same parameters is not drawn again); others give none.
     result : IdentificationResult
-        The result so far (for ``'greybox_fit'`` an object with ``frfs`` and ``greybox``).
+        The result so far (for ``'greybox_model'`` and ``'greybox_fit'`` an object with
+        ``frfs`` and ``greybox``).
     out : Path
         The report folder.
 
@@ -150,9 +153,23 @@ def step_jobs(step: str, result: Any, out: Path) -> List[PlotJob]:
             if points is not None:
                 jobs.append(PlotJob(out / f'static_{_file_name(key)}.png', 'static',
                                     (key, fit, points[0], points[1])))
+    elif step == 'greybox_model' and result.greybox is not None:
+        key = fit_key(result.greybox)
+        jobs = [PlotJob(out / f'bode_{_file_name(frf.name)}.png', 'bode', (frf,), key)
+                for frf in result.frfs if frf.model_response is not None]
+        jobs.append(_pole_zero_job(result, out, key))
     elif step == 'greybox_fit' and result.greybox is not None:
         jobs = [job for job in report_jobs(result, out) if job.key]
     return jobs
+
+
+def _pole_zero_job(result: Any, out: Path, key: str) -> PlotJob:
+    """The pole-zero map: every transfer-function fit and the grey-box linearisation."""
+    frfs = [SimpleNamespace(name=r.name, fit=r.fit) for r in result.frfs]
+    greybox = (SimpleNamespace(linear_model=result.greybox.linear_model)
+               if result.greybox is not None else None)
+    return PlotJob(out / 'pole_zero.png', 'pole_zero',
+                   (SimpleNamespace(frfs=frfs, greybox=greybox),), key)
 
 
 def report_jobs(result: Any, out: Path) -> List[PlotJob]:
@@ -188,11 +205,7 @@ def report_jobs(result: Any, out: Path) -> List[PlotJob]:
             jobs.append(PlotJob(out / f'time_{stem}.png', 'time', (slim, name), key))
             jobs.append(PlotJob(out / f'resid_{stem}.png', 'resid', (slim, name), key))
     jobs += step_jobs('static', result, out)
-    frfs = [SimpleNamespace(name=r.name, fit=r.fit) for r in result.frfs]
-    greybox = (SimpleNamespace(linear_model=result.greybox.linear_model)
-               if result.greybox is not None else None)
-    jobs.append(PlotJob(out / 'pole_zero.png', 'pole_zero',
-                        (SimpleNamespace(frfs=frfs, greybox=greybox),), key))
+    jobs.append(_pole_zero_job(result, out, key))
     return jobs
 
 
