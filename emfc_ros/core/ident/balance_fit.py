@@ -42,6 +42,7 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Protocol, Seque
 
 import numpy as np
 
+from emfc_ros.core.blas_threads import with_single_blas_thread
 from emfc_ros.core.ident import balance_frf
 from emfc_ros.core.ident.balance_derived import derived_quantities
 from emfc_ros.core.ident.balance_greybox import (BalanceGreyboxModel, MASS_COORDINATES,
@@ -285,6 +286,7 @@ class Offload(Protocol):
         """
 
 
+@with_single_blas_thread
 def probe_elsewhere(model: balance_frf.MechanicsFrfModel, frfs: Sequence[Any],
                     fit: balance_frf.FrfFit, values: Dict[str, float],
                     configured: Mapping[str, float], lower: Optional[Mapping[str, float]]
