@@ -7,10 +7,12 @@ shared VM hits all alike. The variants leave out, in the child process only:
 
 - ``no_greybox_figures``: the 15 figures of the grey-box fit (Bode diagrams with the model,
   time series, residual analyses, pole-zero map); the coherence and static figures stay;
-- ``no_probe``: the frequency-domain fit's probe for a second optimum (four restarts).
+- ``probe_in_line``: the frequency-domain fit's probe for a second optimum (four restarts)
+  run in the job's own process before the time-domain fit, as before issue 14's seventh
+  round, instead of in a plot worker during it (the same-run baseline of that change).
 
-A variant is a measurement of where the time goes, never a way to run the job: its report is
-incomplete and its identification skips a check. Printed per variant: the process wall time
+A variant is a measurement of where the time goes, never a way to run the job
+(``no_greybox_figures`` leaves its report incomplete). Printed per variant: the process wall time
 (median, range) and, for every run, the machine's busy CPU time over the run from
 ``/proc/stat`` (every process, the plot workers included; the machine should be otherwise
 idle)::
@@ -31,7 +33,7 @@ import tempfile
 import time
 from typing import Dict, List, Tuple
 
-VARIANTS = ('shipped', 'no_greybox_figures', 'no_probe')
+VARIANTS = ('shipped', 'no_greybox_figures', 'probe_in_line')
 
 CHILD = r"""
 import sys
@@ -39,15 +41,19 @@ import sys
 
 def main():
     variant, out = sys.argv[1], sys.argv[2]
-    if variant == 'no_probe':
-        from emfc_ros.core.ident import balance_fit
-        balance_fit.probe_ambiguity = lambda model, frfs, fit, *args, **kwargs: fit
+    if variant == 'probe_in_line':
+        from emfc_ros.core.report import background
+
+        def refuse(*args, **kwargs):
+            raise RuntimeError('probe in line (bench variant)')
+
+        background.PlotPool.submit_task = refuse
     elif variant == 'no_greybox_figures':
         from emfc_ros.core.report import background, writer
         step_jobs, report_jobs = background.step_jobs, background.report_jobs
 
         def no_step_jobs(step, result, out):
-            return [] if step == 'greybox_fit' else step_jobs(step, result, out)
+            return [] if step.startswith('greybox_') else step_jobs(step, result, out)
 
         def no_report_jobs(*args, **kwargs):
             return [j for j in report_jobs(*args, **kwargs)
