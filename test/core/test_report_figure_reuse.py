@@ -107,6 +107,26 @@ def test_reused_axes_draw_the_fresh_figure(jobs, tmp_path, order, monkeypatch):
         assert different == 0, f'{a.name}: {different} pixels differ'
 
 
+def test_two_threads_never_share_a_figure(jobs, tmp_path):
+    import threading
+    bode = next(job for job in jobs if job.kind == 'bode')
+    plots._KEPT.clear()
+    together = threading.Barrier(2, timeout=60)
+
+    def draw(k):
+        together.wait()                 # both threads alive while either draws
+        background.draw(replace(bode, path=tmp_path / f'{k}.png'))
+        together.wait()
+
+    threads = [threading.Thread(target=draw, args=(k,)) for k in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(120)
+    assert len([key for key in plots._KEPT if key[0] == 'bode']) == 2
+    plots._KEPT.clear()
+
+
 def test_figures_of_one_layout_share_one_figure(jobs, tmp_path):
     bode = [job for job in jobs if job.kind == 'bode']
     assert len(bode) >= 2

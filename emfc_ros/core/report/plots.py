@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+import threading
 from typing import Any, Dict, Optional, Sequence, Tuple, Union
 
 import numpy as np
@@ -37,7 +38,10 @@ PNG_COMPRESSION = 1
 #: a label and a grid line each, styled from the rc parameters) was about a fifth of a
 #: figure's time; the picture is the same, pixel for pixel (``test_report_plots.py``).
 REUSE_FIGURES = True
-#: The figures kept for reuse, by kind and layout.
+#: The figures kept for reuse, by thread, kind and layout (a figure is never shared by two
+#: threads drawing at once, e.g. two reports of a node's service callbacks).
+#: Most figures kept (beyond, the cache starts again empty).
+MAX_KEPT = 32
 _KEPT: Dict[Tuple[Any, ...], Tuple[Any, np.ndarray]] = {}
 
 
@@ -99,7 +103,8 @@ def _axes(kind: str, figsize: Tuple[float, float], rows: int, sharex: bool = Fal
     axes : ndarray of Axes, shape (rows, 1)
         Its axes, empty.
     """
-    key = (kind, tuple(figsize), rows, sharex, tuple(height_ratios or ()))
+    key = (kind, tuple(figsize), rows, sharex, tuple(height_ratios or ()),
+           threading.get_ident())
     kept = _KEPT.get(key) if REUSE_FIGURES else None
     if kept is not None:
         for ax in kept[1].flat:
@@ -109,6 +114,8 @@ def _axes(kind: str, figsize: Tuple[float, float], rows: int, sharex: bool = Fal
     extra = {'gridspec_kw': {'height_ratios': list(height_ratios)}} if height_ratios else {}
     axes = fig.subplots(rows, 1, sharex=sharex, squeeze=False, **extra)
     if REUSE_FIGURES:
+        if len(_KEPT) >= MAX_KEPT:      # threads come and go in a long-lived node
+            _KEPT.clear()
         _KEPT[key] = (fig, axes)
     return fig, axes
 
