@@ -7,6 +7,12 @@ import sys
 from emfc_ros.core.heap import CommandHeap
 
 
+def _python(code):
+    """Run code in a fresh interpreter (the collector settings are the whole process's)."""
+    return subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                          timeout=120)
+
+
 def test_settled_does_nothing_before_start():
     heap = CommandHeap()
     frozen = gc.get_freeze_count()
@@ -16,7 +22,6 @@ def test_settled_does_nothing_before_start():
 
 
 def test_the_collector_is_off_for_the_imports_and_the_imports_are_frozen():
-    # in a process of its own: freezing is for the whole process
     code = (
         'import gc\n'
         'from emfc_ros.core.heap import CommandHeap\n'
@@ -30,8 +35,7 @@ def test_the_collector_is_off_for_the_imports_and_the_imports_are_frozen():
         'assert gc.get_freeze_count() > before > -1\n'
         'assert gc.get_count()[0] < 50\n'
         'print("ok", gc.get_freeze_count())\n')
-    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
-                         timeout=60)
+    out = _python(code)
     assert out.returncode == 0, out.stderr
     assert out.stdout.startswith('ok ')
     assert int(out.stdout.split()[1]) > 10000
@@ -45,6 +49,5 @@ def test_the_command_turns_it_off_and_the_library_call_does_not():
         'sys.argv = ["emfc-experiment", "/nonexistent/plan.yaml"]\n'
         'assert ex.main() == 2 and gc.isenabled() and not ex.COMMAND_HEAP.active\n'
         'ex.console_main()\n')
-    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
-                         timeout=120)
+    out = _python(code)
     assert out.returncode == 2, (out.stdout, out.stderr)
