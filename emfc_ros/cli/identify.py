@@ -15,10 +15,11 @@ why, and is written), 2 bad arguments, an unreadable bag or an unknown pan load.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 from pathlib import Path
 import sys
 import time
-from typing import List, Optional
+from typing import Any, List, Optional
 
 import yaml
 
@@ -27,6 +28,21 @@ from emfc_ros.core.safe_yaml import load_yaml_file, one_line, YamlRefused
 
 def _progress(step: str, fraction: float, message: str) -> None:
     print(f'  {step:<12} {100 * fraction:5.1f} %  {message}', flush=True)
+
+
+def _plot_pool() -> Any:
+    """
+    Worker processes for the report's figures, started now (None without matplotlib).
+
+    They import matplotlib while this process reads the bag and identifies, draw the
+    figures of each step while the next runs, and run the grey-box's probe for a second
+    optimum beside its time-domain fit (:mod:`emfc_ros.core.report.background`), as in
+    ``emfc-experiment``; the report is the same as drawn here.
+    """
+    if importlib.util.find_spec('matplotlib') is None:
+        return None
+    from emfc_ros.core.report.background import PlotPool
+    return PlotPool()
 
 
 def main(argv: Optional[List[str]] = None) -> int:
@@ -91,19 +107,29 @@ def main(argv: Optional[List[str]] = None) -> int:
     from emfc_ros.core.ident.from_bag import identify_bag, PlantConfigurationError
     from emfc_ros.core.report import write_report
     t0 = time.monotonic()
+    pool = _plot_pool()
     try:
-        result, info = identify_bag(bag, options, args.namespace, progress=_progress)
-    except (PlantConfigurationError, BagFormatError) as exc:
-        print(f'emfc-identify: {exc}', file=sys.stderr)
-        return 2
-    except (ValueError, OSError, KeyError) as exc:
-        print(f'emfc-identify: {exc}', file=sys.stderr)
-        return 1
-    try:
-        write_report(result, out)
-    except (ValueError, OSError) as exc:
-        print(f'emfc-identify: cannot write the report to {out}: {exc}', file=sys.stderr)
-        return 1
+        def step_done(step: str, partial: Any) -> None:
+            pool.submit_step(step, partial, out)    # drawn while the next step runs
+
+        try:
+            result, info = identify_bag(bag, options, args.namespace, progress=_progress,
+                                        on_step=step_done if pool is not None else None,
+                                        executor=pool.tasks if pool is not None else None)
+        except (PlantConfigurationError, BagFormatError) as exc:
+            print(f'emfc-identify: {exc}', file=sys.stderr)
+            return 2
+        except (ValueError, OSError, KeyError) as exc:
+            print(f'emfc-identify: {exc}', file=sys.stderr)
+            return 1
+        try:
+            write_report(result, out, pool=pool)
+        except (ValueError, OSError) as exc:
+            print(f'emfc-identify: cannot write the report to {out}: {exc}', file=sys.stderr)
+            return 1
+    finally:
+        if pool is not None:
+            pool.close()
     print(f'identified {info["samples"]} samples of {info["namespace"]}/measurements in '
           f'{time.monotonic() - t0:.1f} s; results in {out}/')
     print((out / 'summary.md').read_text())

@@ -60,6 +60,13 @@ def test_an_intact_bag_is_identified(record, tmp_path):
     assert results['configuration']['load_mass_kg'] == record.known_load_mass_kg
     assert results['configuration']['source'].startswith(
         'load_mass_kg from measurement description (extra)')
+    # the figures, drawn by the command's plot workers, all there and none failed
+    names = {p.name for p in (tmp_path / 'out').glob('*.png')}
+    assert {'bode_coil_chirp.coil.png', 'coherence_coil_chirp.coil.png', 'time_coil_chirp.png',
+            'resid_coil_chirp.png', 'pole_zero.png'} <= names, names
+    summary = (tmp_path / 'out' / 'summary.md').read_text()
+    assert 'plot failed' not in summary
+    assert all(name in summary for name in names)
 
 
 @pytest.mark.slow
