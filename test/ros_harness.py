@@ -15,7 +15,7 @@ import signal
 import subprocess
 import sys
 import time
-from typing import Callable, Dict, List, Optional, Sequence
+from typing import Any, Callable, Dict, List, Optional, Sequence
 
 DISCOVERY_TIMEOUT_S = 10.0
 
@@ -117,6 +117,39 @@ def spin_until(executor, predicate: Callable[[], bool], timeout_s: float) -> boo
         Whether the condition held in time.
     """
     return wait_until(predicate, timeout_s, lambda: executor.spin_once(timeout_sec=0.02))
+
+
+def call_until_answered(executor, send: Callable[[], Any], timeout_s: float,
+                        attempt_s: float = 3.0) -> Optional[Any]:
+    """
+    Send an idempotent service request again until it is answered or the timeout passes.
+
+    Right after a client sees a server, the server may not yet have matched the client's
+    response reader, and the response to a first request is then lost (the future never
+    completes: a clean-clone CI run waited 20 s for a parameter client's first answer).
+
+    Parameters
+    ----------
+    executor : rclpy.executors.Executor
+        The executor with the client's node.
+    send : callable
+        Sends the request, returns its future (e.g. ``client.set_parameters(...)``).
+    timeout_s : float
+        Upper bound for all attempts [s].
+    attempt_s : float
+        Wait for one answer before sending again [s].
+
+    Returns
+    -------
+    rclpy.task.Future or None
+        The answered future; None if none was answered in time.
+    """
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        future = send()
+        if spin_until(executor, future.done, min(attempt_s, deadline - time.monotonic())):
+            return future
+    return None
 
 
 class NodeProcess:

@@ -232,8 +232,10 @@ def test_separate_process_refuses_bad_parameters(tmp_path, processes, executor, 
     assert ros_harness.spin_until(executor, client.services_are_ready, TIMEOUT_S), proc.output()
 
     def set_one(name, value):
-        future = client.set_parameters([Parameter(name, value=value)])
-        assert ros_harness.spin_until(executor, future.done, TIMEOUT_S)
+        # each request is idempotent: sent again if the answer to the first was lost
+        future = ros_harness.call_until_answered(
+            executor, lambda: client.set_parameters([Parameter(name, value=value)]), TIMEOUT_S)
+        assert future is not None, (name, proc.output())
         return future.result().results[0]
 
     for name, value, needle in [('load_mass_kg', -0.1, 'load_mass_kg'),
