@@ -264,7 +264,11 @@ def test_refused_startup_value_keeps_node_running(name, value, needle, executor,
         [(s.name, s.message) for s in probe.diagnostics.values()]
     client = AsyncParameterClient(probe.node, f'/conv/{name}')
     assert ros_harness.spin_until(executor, client.services_are_ready, TIMEOUT_S)
-    got = call(executor, client.get_parameters([needle])).values[0]
+    # the node is another process: the answer to a first request may be lost
+    answered = ros_harness.call_until_answered(
+        executor, lambda: client.get_parameters([needle]), TIMEOUT_S)
+    assert answered is not None, proc.output()
+    got = answered.result().values[0]
     default = module(name).PARAMETERS[needle][0]
     assert parameter_value_to_python(got) == default
     assert proc.alive()
