@@ -1,22 +1,30 @@
 """
-An experiment on the balance hardware (or the device emulator); needs a full ROS 2 Jazzy install.
+An experiment on the balance hardware (or the device emulator).
 
-The signal generator, paced by the wall clock, streams the excitation to the daq_bridge, which
-writes it to the device over UDP ``excitation_lead_s`` ahead of the device's sample clock and
-publishes the measured blocks with the device's sample indices. The bridge starts the device
-and subscribes to the excitation once ``min_subscribers`` (default 1) subscriptions to
-``/emfc/measurements`` matched, and the generator holds sample 0 until the bridge's
-subscription matched, so that the recording (started before or after the launch) has the
-experiment from its first sample. Record with
+The signal generator streams the excitation to the daq_bridge, which writes it to the device
+over UDP ``excitation_lead_s`` ahead of the device's sample clock and publishes the measured
+blocks with the device's sample indices. With ``pacing:=consumer`` (the default) the
+generator follows the device's clock through the bridge's acknowledgements
+(``excitation/consumed``), ``window_blocks`` ahead; ``pacing:=wall`` paces it by this
+computer's clock instead, ``lead_blocks`` ahead. The bridge starts the device and subscribes
+to the excitation once ``min_subscribers`` (default 1) subscriptions to ``measurements``
+matched, then announces itself ready on ``excitation/ready``; the generator holds sample 0
+until the bridge is ready and matched and ``excitation_subscribers`` (default 2: the bridge
+and a recorder of the excitation) subscriptions to ``excitation`` matched (``start_gate``),
+so that the recording, started before or after the launch, has the experiment from its first
+sample and the device applies it from sample 0. Record with
 ``ros2 bag record -s mcap /emfc/excitation /emfc/excitation/description /emfc/measurements
-/emfc/measurements/description /diagnostics``.
+/emfc/measurements/description /diagnostics`` or the README's recorder line with the same
+topics; give the pan load (``load_mass_kg``, ``load_changer_coupled``) so that
+``emfc-identify BAG`` finds it in the bag.
 
-    emfc-device-emulator --port 5555 &          # or the real device
-    ros2 launch emfc_ros hardware_experiment.launch.py device_port:=5555
+emfc-device-emulator --port 5555 --load-mass-kg balance &     # or the real device
+ros2 launch emfc_ros hardware_experiment.launch.py load_mass_kg:=0.1274 load_changer_coupled:=false
 
-Every launch file takes ``discovery_range:=`` (the nodes' ``ROS_AUTOMATIC_DISCOVERY_RANGE``;
-default ``LOCALHOST``, discovery on this computer only); ``ROS_STATIC_PEERS`` set in the
-shell reaches the nodes as it is (README, Two computers).
+Every launch file takes ``namespace:=`` (default ``emfc``) and ``discovery_range:=`` (the
+nodes' ``ROS_AUTOMATIC_DISCOVERY_RANGE``; default ``LOCALHOST``, discovery on this computer
+only); ``ROS_STATIC_PEERS`` set in the shell reaches the nodes as it is (README, Two
+computers). An argument the file does not declare is an error (``--show-args`` lists them).
 """
 
 from launch import LaunchDescription
@@ -26,20 +34,25 @@ from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
 
+from emfc_ros.launch_support import (common_arguments, declared_names, node_environment,
+                                     refuse_undeclared)
 
-#: Values of ROS_AUTOMATIC_DISCOVERY_RANGE (rcl).
-DISCOVERY_RANGES = ['LOCALHOST', 'SUBNET', 'OFF', 'SYSTEM_DEFAULT']
+#: The generator's start gates (signal_generator parameter start_gate).
+START_GATES = ['applier', 'subscribers', 'none']
 
 
 def generate_launch_description():
-    """Describe the wall-paced signal generator and the udp daq_bridge in namespace emfc."""
+    """Describe the signal generator and the udp daq_bridge in one namespace."""
     share = FindPackageShare('emfc_ros')
-    env = {'ROS_AUTOMATIC_DISCOVERY_RANGE': LaunchConfiguration('discovery_range')}
-    return LaunchDescription([
+    env = node_environment()
+    namespace = LaunchConfiguration('namespace')
+    arguments = [
         DeclareLaunchArgument(
             'experiment_file',
             default_value=PathJoinSubstitution([share, 'config',
-                                                'identification_trajectory.yaml'])),
+                                                'identification_trajectory.yaml']),
+            description="experiment YAML file (default: the paper's identification "
+                        'trajectory)'),
         DeclareLaunchArgument(
             'bridge_params_file',
             default_value=PathJoinSubstitution([share, 'config', 'daq_bridge_udp.yaml']),
@@ -51,17 +64,48 @@ def generate_launch_description():
         DeclareLaunchArgument('block_size', default_value='1000',
                               description='samples per excitation block'),
         DeclareLaunchArgument('min_subscribers', default_value='1',
-                              description='the device starts once this many subscriptions to '
-                                          '/emfc/measurements (a recorder) matched; 0: at once'),
-        DeclareLaunchArgument(
-            'discovery_range', default_value='LOCALHOST', choices=DISCOVERY_RANGES,
-            description='ROS_AUTOMATIC_DISCOVERY_RANGE of the nodes: LOCALHOST keeps '
-                        'discovery on this computer (ROS_STATIC_PEERS in the environment '
-                        'adds named computers: README, Two computers); SUBNET multicasts '
-                        'it on every network this computer is on'),
+                              description='the device starts (and the bridge is ready) once '
+                                          'this many subscriptions to measurements (a '
+                                          'recorder) matched [count]; 0: at once'),
+        DeclareLaunchArgument('excitation_subscribers', default_value='2',
+                              description='sample 0 also waits for this many subscriptions '
+                                          "to the excitation [count], the bridge's included: "
+                                          '2 = the bridge and a recorder of the excitation; 1 '
+                                          'when nothing records the excitation'),
+        DeclareLaunchArgument('start_gate', default_value='applier', choices=START_GATES,
+                              description='what sample 0 waits for: applier = the bridge '
+                                          'ready on excitation/ready (and '
+                                          'excitation_subscribers); subscribers = the count '
+                                          'alone; none = nothing'),
+        DeclareLaunchArgument('pacing', default_value='consumer', choices=['consumer', 'wall'],
+                              description="consumer = the device's clock, through the "
+                                          "bridge's acknowledgements; wall = this "
+                                          "computer's clock"),
+        DeclareLaunchArgument('window_blocks', default_value='8',
+                              description='consumer pacing: blocks in flight ahead of the '
+                                          'device [blocks]; must hold excitation_lead_s plus '
+                                          'one block'),
+        DeclareLaunchArgument('lead_blocks', default_value='2',
+                              description='wall pacing: blocks sent ahead of the wall clock '
+                                          '[blocks]'),
+        DeclareLaunchArgument('excitation_lead_s', default_value='0.3',
+                              description='setpoints are written this far ahead of the '
+                                          'device clock [s]; a host stall longer than this '
+                                          'underruns the device (a fault)'),
+        DeclareLaunchArgument('load_mass_kg', default_value='-1.0',
+                              description='mass on the pan [kg], published for the '
+                                          'identification; negative: not declared'),
+        DeclareLaunchArgument('load_changer_coupled', default_value='',
+                              description="true or false: whether the load changer's moving "
+                                          "mass rides on the pan; '': not declared"),
+        *common_arguments(),
+    ]
+    return LaunchDescription([
+        refuse_undeclared(declared_names(arguments)),
+        *arguments,
         Node(
             package='emfc_ros', executable='daq_bridge', name='daq_bridge',
-            namespace='emfc', output='screen', additional_env=env,
+            namespace=namespace, output='screen', additional_env=env,
             parameters=[LaunchConfiguration('bridge_params_file'), {
                 'backend': 'udp',
                 'udp.device_host': LaunchConfiguration('device_host'),
@@ -70,17 +114,28 @@ def generate_launch_description():
                 'excitation_mode': 'stream',
                 'min_subscribers': ParameterValue(LaunchConfiguration('min_subscribers'),
                                                   value_type=int),
+                'excitation_lead_s': ParameterValue(LaunchConfiguration('excitation_lead_s'),
+                                                    value_type=float),
+                'pan.load_mass_kg': ParameterValue(LaunchConfiguration('load_mass_kg'),
+                                                   value_type=float),
+                'pan.load_changer_coupled': ParameterValue(
+                    LaunchConfiguration('load_changer_coupled'), value_type=str),
             }],
         ),
         Node(
             package='emfc_ros', executable='signal_generator', name='signal_generator',
-            namespace='emfc', output='screen', additional_env=env,
+            namespace=namespace, output='screen', additional_env=env,
             parameters=[{
                 'experiment_file': LaunchConfiguration('experiment_file'),
-                'pacing': 'wall',
-                # Sample 0 waits for the bridge's subscription: the excitation sent before
-                # discovery matched would be lost (the start of the experiment never applied).
-                'min_subscribers': 1,
+                'pacing': ParameterValue(LaunchConfiguration('pacing'), value_type=str),
+                'start_gate': ParameterValue(LaunchConfiguration('start_gate'),
+                                             value_type=str),
+                'min_subscribers': ParameterValue(
+                    LaunchConfiguration('excitation_subscribers'), value_type=int),
+                'window_blocks': ParameterValue(LaunchConfiguration('window_blocks'),
+                                                value_type=int),
+                'lead_blocks': ParameterValue(LaunchConfiguration('lead_blocks'),
+                                              value_type=int),
                 'block_size': ParameterValue(LaunchConfiguration('block_size'),
                                              value_type=int),
             }],

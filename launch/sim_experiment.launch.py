@@ -1,21 +1,31 @@
 """
-An experiment on the simulated balance (needs a full ROS 2 Jazzy install).
+An experiment on the simulated balance.
 
 The signal generator, consumer-paced, drives the plant simulator, which owns time (it
-publishes /clock and runs as fast as the excitation arrives). The two processes may come
-up in any order: the generator holds sample 0 until the plant's subscription and
-acknowledgements are matched and re-sends a window that is not acknowledged (README,
-signal_generator). The plant subscribes to the excitation only once ``min_subscribers``
-(default 1) subscriptions to ``/emfc/measurements`` are there, so the experiment starts
-when a recorder listens (start it after the launch, README): ``ros2 run emfc_ros recorder``
-with ``use_sim_time:=true`` and ``/clock`` among its topics (README, plant_simulator) or
-``ros2 bag record -s mcap /emfc/excitation /emfc/measurements /clock ...``.
+publishes the clock and runs as fast as the excitation arrives). The two processes, and a
+recorder, may come up in any order. The plant subscribes to the excitation once
+``min_subscribers`` (default 1) subscriptions to ``measurements`` matched, and then
+announces itself ready on ``excitation/ready``. The generator holds sample 0 until the plant
+is ready and matched and ``excitation_subscribers`` (default 2: the plant and a recorder of
+the excitation) subscriptions to ``excitation`` matched (``start_gate``, README,
+signal_generator). Its status says what it waits for. Record with the README's recorder line
+(``use_sim_time:=true``, ``/clock`` among its topics) or
+``ros2 bag record -s mcap --use-sim-time /emfc/excitation /emfc/excitation/description
+/emfc/measurements /emfc/measurements/description /clock``.
 
     ros2 launch emfc_ros sim_experiment.launch.py load_mass_kg:=0.1274
 
-Every launch file takes ``discovery_range:=`` (the nodes' ``ROS_AUTOMATIC_DISCOVERY_RANGE``;
-default ``LOCALHOST``, discovery on this computer only); ``ROS_STATIC_PEERS`` set in the
-shell reaches the nodes as it is (README, Two computers).
+Two simulated balances on one domain: give each its own ``namespace`` and its own clock,
+``clock_topic:=clock`` (the relative name puts it in the namespace, ``/a/clock``, and every
+node of the instance follows it); a plant that finds another publisher of its clock topic
+refuses to simulate and says so (``docs/simulator.md``, Two simulated balances).
+
+    ros2 launch emfc_ros sim_experiment.launch.py namespace:=a clock_topic:=clock
+
+Every launch file takes ``namespace:=`` (default ``emfc``) and ``discovery_range:=`` (the
+nodes' ``ROS_AUTOMATIC_DISCOVERY_RANGE``; default ``LOCALHOST``, discovery on this computer
+only); ``ROS_STATIC_PEERS`` set in the shell reaches the nodes as it is (README, Two
+computers). An argument the file does not declare is an error (``--show-args`` lists them).
 """
 
 from launch import LaunchDescription
@@ -25,41 +35,69 @@ from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
 
+from emfc_ros.launch_support import (common_arguments, declared_names, node_environment,
+                                     refuse_undeclared)
 
-#: Values of ROS_AUTOMATIC_DISCOVERY_RANGE (rcl).
-DISCOVERY_RANGES = ['LOCALHOST', 'SUBNET', 'OFF', 'SYSTEM_DEFAULT']
+#: The generator's start gates (signal_generator parameter start_gate).
+START_GATES = ['applier', 'subscribers', 'none']
 
 
 def generate_launch_description():
-    """Describe the signal generator and the plant simulator in namespace emfc."""
+    """Describe the signal generator and the plant simulator in one namespace."""
     share = FindPackageShare('emfc_ros')
-    env = {'ROS_AUTOMATIC_DISCOVERY_RANGE': LaunchConfiguration('discovery_range')}
-    return LaunchDescription([
+    env = node_environment()
+    namespace = LaunchConfiguration('namespace')
+    clock = [('/clock', LaunchConfiguration('clock_topic'))]
+    arguments = [
         DeclareLaunchArgument(
             'experiment_file',
             default_value=PathJoinSubstitution([share, 'config',
-                                                'identification_trajectory.yaml'])),
+                                                'identification_trajectory.yaml']),
+            description="experiment YAML file (default: the paper's identification "
+                        'trajectory)'),
         DeclareLaunchArgument(
             'balance_file',
-            default_value=PathJoinSubstitution([share, 'config', 'balance_default.yaml'])),
+            default_value=PathJoinSubstitution([share, 'config', 'balance_default.yaml']),
+            description='balance parameter YAML of the simulated balance'),
         DeclareLaunchArgument('load_mass_kg', default_value='0.1274',
                               description='mass on the pan [kg]; 0.1274 balances the default '
                                           'lever at zero coil current'),
         DeclareLaunchArgument('seed', default_value='0',
                               description='seed of the simulated noise'),
         DeclareLaunchArgument('min_subscribers', default_value='1',
-                              description='the experiment starts once this many subscriptions '
-                                          'to /emfc/measurements (a recorder) matched; 0: at '
+                              description='the plant subscribes to the excitation (and is '
+                                          'ready) once this many subscriptions to '
+                                          'measurements (a recorder) matched [count]; 0: at '
                                           'once'),
-        DeclareLaunchArgument(
-            'discovery_range', default_value='LOCALHOST', choices=DISCOVERY_RANGES,
-            description='ROS_AUTOMATIC_DISCOVERY_RANGE of the nodes: LOCALHOST keeps '
-                        'discovery on this computer (ROS_STATIC_PEERS in the environment '
-                        'adds named computers: README, Two computers); SUBNET multicasts '
-                        'it on every network this computer is on'),
+        DeclareLaunchArgument('excitation_subscribers', default_value='2',
+                              description='sample 0 also waits for this many subscriptions '
+                                          "to the excitation [count], the plant's included: "
+                                          '2 = the plant and a recorder of the excitation; 1 '
+                                          'when nothing records the excitation'),
+        DeclareLaunchArgument('start_gate', default_value='applier', choices=START_GATES,
+                              description='what sample 0 waits for: applier = the plant '
+                                          'ready on excitation/ready (and '
+                                          'excitation_subscribers); subscribers = the count '
+                                          'alone; none = nothing'),
+        DeclareLaunchArgument('pacing', default_value='consumer', choices=['consumer', 'wall'],
+                              description='consumer = as fast as the plant acknowledges; '
+                                          "wall = at the wall clock's pace"),
+        DeclareLaunchArgument('window_blocks', default_value='8',
+                              description="excitation blocks in flight ahead of the plant's "
+                                          'acknowledgement [blocks]'),
+        DeclareLaunchArgument('clock_topic', default_value='/clock',
+                              description='topic of the simulated time the plant publishes '
+                                          'and the generator follows; clock (relative) puts '
+                                          'it in the namespace, for two simulated balances '
+                                          'on one domain'),
+        *common_arguments(),
+    ]
+    return LaunchDescription([
+        refuse_undeclared(declared_names(arguments)),
+        *arguments,
         Node(
             package='emfc_ros', executable='plant_simulator', name='plant_simulator',
-            namespace='emfc', output='screen', additional_env=env,
+            namespace=namespace, output='screen', additional_env=env, remappings=clock,
             parameters=[{
                 'balance_file': LaunchConfiguration('balance_file'),
                 'time_mode': 'owner',
@@ -72,10 +110,16 @@ def generate_launch_description():
         ),
         Node(
             package='emfc_ros', executable='signal_generator', name='signal_generator',
-            namespace='emfc', output='screen', additional_env=env,
+            namespace=namespace, output='screen', additional_env=env, remappings=clock,
             parameters=[{
                 'experiment_file': LaunchConfiguration('experiment_file'),
-                'pacing': 'consumer',
+                'pacing': ParameterValue(LaunchConfiguration('pacing'), value_type=str),
+                'start_gate': ParameterValue(LaunchConfiguration('start_gate'),
+                                             value_type=str),
+                'min_subscribers': ParameterValue(
+                    LaunchConfiguration('excitation_subscribers'), value_type=int),
+                'window_blocks': ParameterValue(LaunchConfiguration('window_blocks'),
+                                                value_type=int),
                 'use_sim_time': True,
             }],
         ),

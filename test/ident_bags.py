@@ -45,7 +45,8 @@ def write_experiment_bag(path: Path, channels: Mapping[str, np.ndarray], sample_
                          sections: Sequence[Sequence[Any]], namespace: str = '/emfc',
                          extra: Optional[Mapping[str, Any]] = None,
                          custom_data: Optional[Mapping[str, Any]] = None,
-                         block_size: int = 10000) -> Path:
+                         block_size: int = 10000, excitation_blocks: bool = True,
+                         excitation_description: bool = True) -> Path:
     """
     Write a recorded experiment as a bag.
 
@@ -68,6 +69,9 @@ def write_experiment_bag(path: Path, channels: Mapping[str, np.ndarray], sample_
         Metadata ``custom_data`` entries (values dumped as YAML).
     block_size : int
         Samples per block.
+    excitation_blocks, excitation_description : bool
+        Whether the excitation's blocks and its description (the section table) are in the
+        bag (a recording of the measurements alone leaves out the blocks).
 
     Returns
     -------
@@ -81,24 +85,28 @@ def write_experiment_bag(path: Path, channels: Mapping[str, np.ndarray], sample_
     writer.open()
     meas = writer.add_connection(f'{namespace}/measurements', F64, [OfferedQos()])
     meas_d = writer.add_connection(f'{namespace}/measurements/description', STR, [OfferedQos()])
-    exc = writer.add_connection(f'{namespace}/excitation', F64, [OfferedQos()])
-    exc_d = writer.add_connection(f'{namespace}/excitation/description', STR, [OfferedQos()])
+    exc = writer.add_connection(f'{namespace}/excitation', F64, [OfferedQos()]) \
+        if excitation_blocks else None
+    exc_d = writer.add_connection(f'{namespace}/excitation/description', STR,
+                                  [OfferedQos()]) if excitation_description else None
     table = [{'name': s[0], 'first_sample_index': int(s[1]), 'n_samples': int(s[2])}
              for s in sections]
     writer.write(meas_d, 1, _text(StreamDescription(
         'measurements', sample_rate_Hz, block_size,
         tuple(Channel(c, _unit(c)) for c in names), epoch=1, total_samples=n,
         source='/test_writer', extra=dict(extra or {})).to_json()))
-    writer.write(exc_d, 2, _text(StreamDescription(
-        'excitation', sample_rate_Hz, block_size,
-        (Channel('coil', 'V'), Channel('load_changer', 'V')),
-        epoch=1, total_samples=n, source='/test_writer',
-        extra={'sections': table}).to_json()))
+    if exc_d is not None:
+        writer.write(exc_d, 2, _text(StreamDescription(
+            'excitation', sample_rate_Hz, block_size,
+            (Channel('coil', 'V'), Channel('load_changer', 'V')),
+            epoch=1, total_samples=n, source='/test_writer',
+            extra={'sections': table}).to_json()))
     setpoints = np.vstack([channels['coil_setpoint_V'], channels['load_changer_setpoint_V']])
     t = 3
     for first in range(0, n, block_size):
         stop = min(first + block_size, n)
-        writer.write(exc, t, _block(first, sample_rate_Hz, setpoints[:, first:stop]))
+        if exc is not None:
+            writer.write(exc, t, _block(first, sample_rate_Hz, setpoints[:, first:stop]))
         writer.write(meas, t + 1, _block(first, sample_rate_Hz, data[:, first:stop]))
         t += 2
     for key, value in (custom_data or {}).items():

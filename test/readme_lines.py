@@ -185,6 +185,24 @@ def readme_argv(prefix: str, *contains: str) -> List[str]:
     return command.split(' ')
 
 
+def fenced_argvs(text: str) -> List[List[str]]:
+    """
+    Every fenced shell command of a Markdown text as the shell passes it (its words).
+
+    Parameters
+    ----------
+    text : str
+        Markdown (a docs page).
+
+    Returns
+    -------
+    list of list of str
+        Per command its words, quotes removed, continuations joined, comments dropped.
+    """
+    words = [shlex.split(raw.replace('\\\n', ' '), comments=True) for _, raw in _raw_fenced(text)]
+    return [w for w in words if w]
+
+
 def _raw_fenced(text: str) -> List[Tuple[int, str]]:
     """Fenced shell commands as written (continuations kept, lines stripped)."""
     out, fence, shell, pending, start = [], None, False, '', 0

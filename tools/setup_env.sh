@@ -57,6 +57,9 @@ if [ "$check" = 1 ]; then
   [ -f "$deps_stamp" ] || stale+=("dependencies not installed for this setup.py")
   [ -f "$package_stamp" ] && [ -x "$venv/bin/emfc-experiment" ] ||
     stale+=("emfc_ros not installed from the current sources")
+  if [ -x "$here/../shared/ros2-jazzy-cli/install.sh" ] && ! ls "$venv"/.emfc-ros2cli-* >/dev/null 2>&1; then
+    stale+=("the real ROS 2 command line (../shared/ros2-jazzy-cli) not installed")
+  fi
   if [ ${#stale[@]} -gt 0 ]; then
     printf 'setup_env --check: %s\n' "${stale[@]}" >&2
     exit 1
@@ -77,6 +80,19 @@ if [ ! -f "$deps_stamp" ]; then
     'flake8-docstrings' 'pep8-naming' 2>&1 | quiet_pip
   rm -f "$venv"/.emfc-deps-* "$venv"/.emfc-package-*
   touch "$deps_stamp"
+fi
+# The real ROS 2 Jazzy command line (ros2 launch, run, service, topic, param) and the launch
+# packages, for the launch tests, when ../shared/ros2-jazzy-cli is there (CI has it; it is
+# never copied into this repository). Without it the tests use their stand-in and say so.
+cli=$here/../shared/ros2-jazzy-cli
+if [ -x "$cli/install.sh" ]; then
+  cli_stamp="$venv/.emfc-ros2cli-$( (cat "$cli/install.sh"; ls -R "$cli/src" 2>/dev/null) | sha256sum | cut -c1-16)"
+  if [ "$check" = 0 ] && [ ! -f "$cli_stamp" ]; then
+    echo "setup_env: installing the real ROS 2 command line from $cli (for the launch tests)" >&2
+    "$cli/install.sh" "$venv" >&2
+    rm -f "$venv"/.emfc-ros2cli-*
+    touch "$cli_stamp"
+  fi
 fi
 # The package itself, non-editable so that its data files land in $venv/share and
 # $venv/lib/emfc_ros as `pip install .` puts them for users; again only when its sources

@@ -118,6 +118,7 @@ def run(out: Path, experiment_file: Optional[str], timeout_s: float) -> int:
 
     from emfc_ros.core.blocks import Continuity, SequenceTracker
     from emfc_ros.core.json_text import load_json_text
+    from emfc_ros.core.start_gate import readiness_text
     from emfc_ros.nodes.convert import (
         BLOCK_QOS, CONTROL_QOS, LATCHED_QOS, msg_to_block, msg_to_description)
     from emfc_ros.nodes.signal_generator import SignalGeneratorNode
@@ -131,6 +132,10 @@ def run(out: Path, experiment_file: Optional[str], timeout_s: float) -> int:
     state = {'description': None, 'chunks': [], 'received': 0, 'bad': 0, 'section': ''}
     tracker = SequenceTracker()
     ack = monitor.create_publisher(UInt64, 'excitation/consumed', CONTROL_QOS)
+    # The monitor is the consumer: it announces itself ready, as the plant and the bridge
+    # do, for the generator's start gate.
+    monitor.create_publisher(String, 'excitation/ready', LATCHED_QOS).publish(
+        String(data=readiness_text(monitor.get_fully_qualified_name(), True)))
 
     def on_description(msg: String) -> None:
         state['description'] = msg_to_description(msg)

@@ -1,7 +1,7 @@
 """
 emfc-device-emulator: the UDP device emulator (simulated balance inside) as a process.
 
-``emfc-device-emulator [--bind 127.0.0.1] [--port N] [--config balance.yaml] [--channels 4]
+``emfc-device-emulator [--bind 127.0.0.1] [--port N] [--config balance.yaml] [--channels 6]
 [--faults drop=0.01,duplicate=0.01,reorder=0.01,corrupt=0.01,delay_ms=5,stall_s=2,
 stall_after_s=1,die_after_s=30,setpoint_drop=0.01] [--seed S] [--duration-s T]
 [--key-file device.key] [--allow-remote] [--load-mass-kg KG|balance] [--load-changer-coupled]
@@ -56,8 +56,9 @@ def _parser() -> argparse.ArgumentParser:
                         help='bind address (default 127.0.0.1; others need --allow-remote)')
     parser.add_argument('--port', type=int, default=0, help='UDP port (default 0: any free)')
     parser.add_argument('--config', help='balance parameters YAML (default: shipped defaults)')
-    parser.add_argument('--channels', type=int, default=4,
-                        help='analog inputs of the device: most channels a host may select')
+    parser.add_argument('--channels', type=int, default=6,
+                        help='analog inputs of the device: most channels a host may select '
+                             '(default 6: every channel the identification needs)')
     parser.add_argument('--faults', default='', help='comma-separated key=value faults: drop, '
                         'duplicate, reorder, corrupt (probabilities), delay_ms, stall_s, '
                         'stall_after_s, die_after_s, setpoint_drop (setpoint frames lost on '

@@ -553,6 +553,10 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
             Parameter('window_blocks', value=plan.bridge.window_blocks if on_bridge else
                       SIMULATOR_WINDOW_BLOCKS[executor_kind]),
             Parameter('lead_blocks', value=plan.bridge.lead_blocks if on_bridge else 2),
+            # The launch files' rule: sample 0 waits for the device node ready on
+            # excitation/ready and for its and the recorder's subscriptions.
+            Parameter('start_gate', value='applier'),
+            Parameter('min_subscribers', value=2),
             Parameter('autostart', value=False)])
         nodes.append(generator)
         runner = rclpy.create_node('experiment_runner', namespace=ns)

@@ -35,6 +35,16 @@ CONTROL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
 
+#: A consumer's acknowledgements as the generator reads them: best effort. They are
+#: cumulative (a later one says all an earlier one did), and a reliable reader delivers in
+#: order, so one that its first transmission missed would hold every later one back until
+#: the writer's periodic heartbeat repairs it (seconds, measured: the generator re-sent its
+#: window). Compatible with the reliable writers of the plant and the bridge, which repeat
+#: their last acknowledgement while nothing follows it.
+ACK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                     reliability=ReliabilityPolicy.BEST_EFFORT,
+                     durability=DurabilityPolicy.VOLATILE)
+
 
 class BlockMessageBuilder:
     """

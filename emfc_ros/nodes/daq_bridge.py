@@ -11,6 +11,9 @@ run unchanged on hardware. Topics (relative to the node namespace):
   offset fixed when the epoch's first block arrives and published in the measurements
   description (``extra.excitation_offset_samples``). ``excitation/consumed``
   (``std_msgs/UInt64``, out): excitation samples the device has applied.
+  ``excitation/ready`` (``std_msgs/String``, out, latched): JSON ``{node, ready, waiting}``,
+  ready while the device runs with the excitation subscribed (a generator's start gate
+  waits for it); otherwise what the bridge waits for.
 - ``measurements`` (out): the device's input channels, one block per device frame, with the
   device's exact sample indices (never a block that spans a gap); latched
   ``measurements/description`` with names and units from the device configuration;
@@ -27,7 +30,8 @@ that waits for the device runs on the executor: start, stop, the safe-output and
 requests run in order in one worker thread (:class:`~emfc_ros.core.device.jobs.DeviceJobs`);
 ``~/start`` and ``~/stop`` answer at once that the request is under way, and ``~/status``
 (``std_msgs/String``, latched JSON) says how it ended (``state``: ``starting``, ``running``,
-``stopping``, ``stopped`` or ``error``, with ``error``, ``last_error``).
+``stopping``, ``stopped``, ``done`` (a replay published its last block) or ``error``, with
+``error``, ``last_error``).
 """
 
 from __future__ import annotations
@@ -52,11 +56,12 @@ from std_msgs.msg import Float64MultiArray, String, UInt64
 from std_srvs.srv import Trigger
 
 from emfc_ros.core.blocks import Block, Channel, Continuity, SequenceTracker, StreamDescription
+from emfc_ros.core.device import protocol
 from emfc_ros.core.device.backend import (check_generator_range, create_backend,
                                           DEFAULT_INPUTS, DEFAULT_OUTPUTS,
                                           device_config_from_mapping, DeviceConfig)
 from emfc_ros.core.device.clock import device_index_at, earliest_start_ns
-from emfc_ros.core.device.errors import DeviceConfigError, DeviceError
+from emfc_ros.core.device.errors import DeviceConfigError, DeviceError, DeviceRefusedError
 from emfc_ros.core.device.faults import describe, Fault, FaultMonitor
 from emfc_ros.core.device.function_generator import GeneratorSpec, make_signal
 from emfc_ros.core.device.jobs import DeviceJobs
@@ -66,6 +71,7 @@ from emfc_ros.core.errors import BlockError, ConfigError
 from emfc_ros.core.excitation_queue import DROPPED, ExcitationQueue, JumpGuard
 from emfc_ros.core.pan_load import declared_pan_load
 from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V
+from emfc_ros.core.start_gate import readiness_text
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
     node_diagnostics, steady_clock, subscribe_device_inputs, subscribe_excitation)
@@ -266,6 +272,7 @@ class DaqBridgeNode(Node):
         # (kind, device index, message, exact) found off the executor thread, latched by it
         self._worker_faults: List[Tuple[str, Optional[int], str, bool]] = []
         self._retry_at: Optional[float] = None
+        self._start_refused = False
         self._autostart_active = False
         self._error = ''
         self._last_error = ''
@@ -304,6 +311,10 @@ class DaqBridgeNode(Node):
             self.get_logger().error(self._error)
         self._make_publishers()
         self._pub_status = self.create_publisher(String, '~/status', LATCHED_QOS)
+        self._pub_ready = self.create_publisher(String, 'excitation/ready', LATCHED_QOS)
+        self._readiness = ''
+        self._holding = False
+        self._wanted = 0
         self._pub_ack = self.create_publisher(UInt64, 'excitation/consumed', CONTROL_QOS)
         self._pub_state = self.create_publisher(JointState, 'joint_states', STATE_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
@@ -352,10 +363,17 @@ class DaqBridgeNode(Node):
                 '~/status says when it runs (state running) or why not (state error)')
 
     def _start_job(self, why: str) -> Tuple[bool, str]:
+        self._start_refused = False
         ok, message = self._start()
         if ok:
             self._retry_at = None
             self.get_logger().info(f'{why}: {message}')
+        elif why == 'autostart' and self._autostart_active and self._start_refused:
+            self._retry_at = None
+            self.get_logger().error(f'{message}; not retried (the device refused the '
+                                    'configuration: fix the parameters, for example inputs '
+                                    'for a device with fewer analog inputs, and restart the '
+                                    'node or call ~/start)')
         elif why == 'autostart' and self._autostart_active:
             self._retry_at = time.monotonic() + RETRY_PERIOD_S
             self.get_logger().error(f'{message}; retrying every {RETRY_PERIOD_S} s',
@@ -416,9 +434,39 @@ class DaqBridgeNode(Node):
     def _publish_status(self) -> None:
         try:
             self._pub_status.publish(String(data=json.dumps(self.status_values())))
+            self._announce_readiness()
         except Exception:   # noqa: B902 during shutdown the publisher may be gone
             if self.context.ok():
                 raise
+
+    def _readiness_values(self) -> Tuple[bool, str]:
+        """Whether excitation arriving now is applied, and if not what the bridge waits for."""
+        if getattr(self._backend, 'name', '') == 'replay':
+            return False, 'applies no excitation (replay back-end)'
+        if self._holding:
+            pub = self._pub.get('measurements')
+            matched = pub.get_subscription_count() if pub is not None else 0
+            return False, (f'waits for {self._wanted} subscription(s) to '
+                           f'{pub.topic_name if pub is not None else "measurements"} before '
+                           f'starting the device (a recorder; {matched} matched)')
+        if self._state == 'running':
+            return True, ''
+        if self._state == 'error' or self._error:
+            return False, f'refuses: {self._last_error or self._error}'
+        return False, {'starting': 'waits for the device to start',
+                       'stopping': 'waits for the device to stop'}.get(
+            self._state, f'waits for a start (state {self._state}: call ~/start)')
+
+    def _announce_readiness(self) -> None:
+        """Publish excitation/ready when what it says changes."""
+        pub = getattr(self, '_pub_ready', None)
+        if pub is None:
+            return
+        ready, waiting = self._readiness_values()
+        text = readiness_text(self.get_fully_qualified_name(), ready, waiting)
+        if text != self._readiness:
+            self._readiness = text
+            pub.publish(String(data=text))
 
     # -- configuration ---------------------------------------------------------------------
 
@@ -653,6 +701,11 @@ class DaqBridgeNode(Node):
                     self._monitor.add('emergency_stop', 0, None,
                                       'emergency stop latched: outputs at their safe values')
         except (DeviceError, DeviceConfigError) as exc:
+            # The device answered no (or the configuration cannot work): trying again in
+            # 5 s gives the same answer, so autostart stops and says so.
+            self._start_refused = isinstance(exc, DeviceConfigError) or (
+                isinstance(exc, DeviceRefusedError)
+                and exc.status in (protocol.BAD_REQUEST, protocol.UNSUPPORTED))
             self._last_error = f'start failed: {exc}'
             with self._lock:
                 self._counts['excitation_not_running'] += len(self._early)
@@ -675,7 +728,7 @@ class DaqBridgeNode(Node):
 
     def _stop(self) -> Tuple[bool, str]:
         """Stop the acquisition (the worker thread, or destroy_node): waits for the device."""
-        if self._state not in ('running', 'stopping'):
+        if self._state not in ('running', 'stopping', 'done'):
             return True, 'not running'
         self._reader_stop.set()
         if self._reader is not None:
@@ -692,7 +745,7 @@ class DaqBridgeNode(Node):
 
     def _request_stop(self) -> str:
         """Queue a stop in the worker thread; say what happens."""
-        if self._state not in ('running', 'starting', 'stopping'):
+        if self._state not in ('running', 'starting', 'stopping', 'done'):
             return 'not running'
         if self._state == 'running':
             self._set_state('stopping')
@@ -728,6 +781,9 @@ class DaqBridgeNode(Node):
                 self._reader_stop.wait(0.1)
                 continue
             if block is None:
+                if getattr(backend, 'finished', False):
+                    self._replay_done(backend)
+                    return
                 continue
             try:
                 self._handle_block(block, time.monotonic_ns())
@@ -736,6 +792,15 @@ class DaqBridgeNode(Node):
                     return
                 self._counts['reader_errors'] += 1
                 self._last_error = f'publishing a block: {exc}'
+
+    def _replay_done(self, backend: Any) -> None:
+        """The replay published its last block: state done (~/status), said once."""
+        with self._lock:
+            if self._state != 'running':
+                return
+            self._set_state('done')
+        self.get_logger().info(f'replay done: all {backend.n_blocks} recorded blocks '
+                               'published (~/start replays again in a new epoch)')
 
     def _sim_tick(self) -> None:
         if self._state != 'running':
@@ -969,8 +1034,10 @@ class DaqBridgeNode(Node):
                     # The device applies this epoch's excitation from here on: what came
                     # before it was not applied (or in an earlier device epoch). A remap
                     # after safe outputs (watchdog, e-stop) is that fault's, not this one.
+                    # Recorded at the device index sample 0 would have had, spanning the
+                    # samples never applied: experiment samples 0 to first - 1.
                     self._latch([self._monitor.add(
-                        'excitation_start_missing', start, None,
+                        'excitation_start_missing', self._offset, block.first_sample_index,
                         f'the excitation is applied from its sample '
                         f'{block.first_sample_index} on (device sample {start}): its samples '
                         f'0 to {block.first_sample_index - 1} never reached the device in this '

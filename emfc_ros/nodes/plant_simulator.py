@@ -5,7 +5,9 @@ Topics (relative to the node namespace):
 
 - ``excitation`` (``std_msgs/Float64MultiArray``, in): setpoint-voltage blocks [V] (coil,
   load changer) in the block convention; ``excitation/consumed`` (``std_msgs/UInt64``, out):
-  samples consumed so far, for a consumer-paced signal generator.
+  samples consumed so far, for a consumer-paced signal generator; ``excitation/ready``
+  (``std_msgs/String``, out, latched): JSON ``{node, ready, waiting}``, ready once the
+  excitation is subscribed and would be simulated (a generator's start gate waits for it).
 - ``measurements`` (out): every simulated channel in one block stream, on the excitation's
   sample clock when owning time; ``measurements/position``, ``measurements/current`` and
   ``measurements/force`` (out): the same samples grouped as named streams. Each has a
@@ -20,7 +22,10 @@ Topics (relative to the node namespace):
   command, the coil force [N] added to the excitation; held until the next command, zeroed
   by a watchdog after ``command_timeout_s``. It takes effect from the next block on. In
   ``lockstep`` mode the command is the total coil force instead (below).
-- ``/clock`` (``rosgraph_msgs/Clock``, out) when ``time_mode`` is ``owner`` or ``lockstep``.
+- ``/clock`` (``rosgraph_msgs/Clock``, out) when ``time_mode`` is ``owner`` or ``lockstep``;
+  remap it (``-r /clock:=clock``: into the namespace) to run two simulated balances on one
+  domain. A second publisher on the same clock topic is refused: the plant is not ready
+  before the start and stops simulating during a run, with an error naming the other node.
 - ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``, out, 1 Hz).
 
 Service (``std_srvs/Trigger``, private): ``~/reset`` (back to the operating point; simulated
@@ -63,7 +68,7 @@ from rclpy.clock import Clock as RosClock, ClockType
 from rclpy.logging import get_logger
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile
+from rclpy.qos import DurabilityPolicy, QoSProfile
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String, UInt64
@@ -81,6 +86,7 @@ from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V, saturation_coun
 from emfc_ros.core.sim.resolution import simulator_resolution
 from emfc_ros.core.sim.simulator import Simulator
 from emfc_ros.core.sim.state_rate import StateRateLimiter
+from emfc_ros.core.start_gate import parse_endpoints, readiness_text
 from emfc_ros.core.weighing.errors import WeighingError
 from emfc_ros.core.weighing.profiles import parse_load_schedule
 from emfc_ros.nodes.convert import (
@@ -100,7 +106,23 @@ GROUPS = {
               'force_command_N'),
 }
 JOINT = 'lever'
-STATE_QOS = QoSProfile(depth=1000)
+#: joint_states and /clock: many small messages per block. A reliable KEEP_LAST writer
+#: repairs a message its reader missed (a burst of blocks filled the reader's port) only
+#: after a heartbeat, which small messages do not bring with them (Fast DDS sends one
+#: periodically): the history must outlast that, or the message is overwritten and lost (a
+#: recorder saw one /clock tick in 400 lost with depth 100). 5000 messages hold more than
+#: 10 s of the fastest simulation.
+STATE_QOS = QoSProfile(depth=5000)
+CLOCK_QOS = QoSProfile(depth=5000)
+#: An acknowledgement is published again after this long without new excitation [s]: the
+#: last one of a window may be lost like any small message, and the generator would wait
+#: ack_timeout_s before sending again.
+ACK_REPEAT_S = 0.05
+#: Repetitions of one acknowledgement at most (then the generator's re-send takes over).
+ACK_REPEATS = 20
+#: Longest wait, once min_subscribers matched, for the graph's other subscriptions to match
+#: the outputs (a recorder's /clock subscription created with its measurements one) [s].
+OUTPUT_MATCH_S = 5.0
 #: Run-time load changes kept in the measurement description (the latest).
 MAX_LOAD_CHANGES = 100
 
@@ -290,20 +312,27 @@ class PlantSimulatorNode(Node):
                 self._pub_desc[topic] = self.create_publisher(String, f'{topic}/description',
                                                               LATCHED_QOS)
         self._pub_ack = self.create_publisher(UInt64, 'excitation/consumed', CONTROL_QOS)
+        self._ack: Optional[tuple] = None       # (index, monotonic time, repetitions)
+        self._acks_repeated = 0
+        self.create_timer(ACK_REPEAT_S, self._repeat_acknowledgement, clock=steady_clock())
         # Deep enough for a block's burst of states (a block of 1000 samples at 10 kHz
         # with states at 1 kHz is 100 messages).
         self._pub_state = self.create_publisher(JointState, 'joint_states', STATE_QOS)
         # One /clock per block, as deep as the blocks: a recorder that falls behind for a
         # moment must not lose ticks (a writer's KEEP_LAST history drops them silently).
-        self._pub_clock = self.create_publisher(Clock, '/clock', BLOCK_QOS) \
+        self._pub_clock = self.create_publisher(Clock, '/clock', CLOCK_QOS) \
             if self._mode in ('owner', 'lockstep') else None
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._pub_ready = self.create_publisher(String, 'excitation/ready', LATCHED_QOS)
+        self._readiness = ''
+        self._clock_conflict = ''
         # Owner mode owns time: a subscriber that was not scheduled for a moment slows the
         # simulation instead of losing blocks (flow_control; no waits in other modes).
         self._flow = AckFlowControl(self._pub['measurements'] if self._mode == 'owner'
                                     else None)
         self._min_subscribers = self._min_subscribers_param()
         self._excitation_timer = None
+        self._listeners_since: Optional[float] = None
         hold = self._mode == 'owner' and self._min_subscribers > 0
         subscribe_device_inputs(self, None if hold else self._on_excitation,
                                 self._on_joint_command, self._on_array_command)
@@ -328,6 +357,7 @@ class PlantSimulatorNode(Node):
                               clock=RosClock(clock_type=ClockType.STEADY_TIME))
         if self._error:
             self._publish_diagnostics()     # the status says why at start, not after 1 s
+        self._announce_readiness()
 
     def _load_schedule(self) -> list:
         """The load schedule as ``[(simulated sample, mass [kg])]``, or [] (error reported)."""
@@ -359,13 +389,81 @@ class PlantSimulatorNode(Node):
         """Subscribe to the excitation once enough subscriptions to measurements matched."""
         matched = self._pub['measurements'].get_subscription_count()
         if matched < self._min_subscribers:
+            self._listeners_since = None
             return
+        # Every subscription the graph lists on an output (a recorder's /clock, joint_states)
+        # matched too, so that the first block's messages reach it: at most OUTPUT_MATCH_S.
+        now = time.monotonic()
+        if self._listeners_since is None:
+            self._listeners_since = now
+        pending = self._unmatched_outputs()
+        if pending and now - self._listeners_since < OUTPUT_MATCH_S:
+            return
+        if pending:
+            self.get_logger().warning(
+                f'subscriptions listed in the graph did not match in {OUTPUT_MATCH_S:g} s on '
+                f'{", ".join(pending)} (incompatible QoS, or gone): starting without them')
+        self._check_clock()
         self._excitation_timer.cancel()
         self.destroy_timer(self._excitation_timer)
         self._excitation_timer = None
         subscribe_excitation(self, self._on_excitation)
         self.get_logger().info(f'{matched} subscription(s) to measurements matched: '
                                'subscribed to the excitation')
+        self._announce_readiness()
+
+    def _unmatched_outputs(self) -> List[str]:
+        """Output topics with fewer matched subscriptions than the graph lists."""
+        pubs = [*self._pub.values(), self._pub_state]
+        if self._pub_clock is not None:
+            pubs.append(self._pub_clock)
+        out = []
+        for pub in pubs:
+            listed = parse_endpoints(
+                (i.node_namespace, i.node_name,
+                 i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL)
+                for i in self.get_subscriptions_info_by_topic(pub.topic_name))
+            wanted = sum(1 for e in listed if e.compatible)
+            if pub.get_subscription_count() < wanted:
+                out.append(f'{pub.topic_name} ({pub.get_subscription_count()} of {wanted})')
+        return out
+
+    def _check_clock(self) -> None:
+        """Refuse a second publisher of our clock topic (two instances' simulated time)."""
+        if self._pub_clock is None or self._clock_conflict:
+            return
+        topic = self._pub_clock.topic_name
+        names = [i.node_namespace.rstrip('/') + '/' + i.node_name
+                 for i in self.get_publishers_info_by_topic(topic)]
+        if len(names) <= 1:
+            return
+        me = self.get_fully_qualified_name()
+        if me in names:
+            names.remove(me)
+        others = sorted(set(names))
+        self._clock_conflict = (
+            f'{", ".join(others)} also publishes {topic}: the simulated time of two balances '
+            'would mix (time running backwards in both); give each instance its own clock '
+            '(launch argument clock_topic:=clock, or -r /clock:=<namespace>/clock for every '
+            'node of the instance); this plant stopped simulating')
+        self._fail(self._clock_conflict)
+        self._announce_readiness()
+
+    def _announce_readiness(self) -> None:
+        """Publish excitation/ready when what it says changes."""
+        if self._sim is None or self._error:
+            ready, waiting = False, f'refuses to simulate: {self._error or "no simulator"}'
+        elif self._excitation_timer is not None:
+            ready = False
+            waiting = (f'waits for {self._min_subscribers} subscription(s) to '
+                       f'{self._pub["measurements"].topic_name} (a recorder; '
+                       f'{self._pub["measurements"].get_subscription_count()} matched)')
+        else:
+            ready, waiting = True, ''
+        text = readiness_text(self.get_fully_qualified_name(), ready, waiting)
+        if text != self._readiness:
+            self._readiness = text
+            self._pub_ready.publish(String(data=text))
 
     def _fail(self, reason: str) -> None:
         """Report a configuration error; the node keeps running but does not simulate."""
@@ -483,7 +581,7 @@ class PlantSimulatorNode(Node):
                                            reason=f'balance configuration refused: {exc}')
             self._sim = candidate
             if self._mode != 'lockstep' or self._lock.period:
-                self._error = ''
+                self._error = self._clock_conflict     # a second clock stays refused
             if self._lock.started:
                 self._lock.hold_V = float(candidate.hold_setpoints_V[0])
             self.get_logger().info('new balance parameters: simulator restarted at its '
@@ -640,7 +738,7 @@ class PlantSimulatorNode(Node):
         return int(round(self._sim_samples * 1e9 / self._rate))
 
     def _on_excitation(self, msg: Float64MultiArray) -> None:
-        if self._sim is None:
+        if self._sim is None or self._clock_conflict:
             self._malformed += 1
             self._last_error = self._error
             return
@@ -660,7 +758,7 @@ class PlantSimulatorNode(Node):
         if kind in DROPPED and block.epoch == self._queue.epoch and self._queue.head_index:
             # A block we already have (counted): its sender did not hear our acknowledgement,
             # so say again how far we are, or a consumer-paced generator waits for nothing.
-            self._pub_ack.publish(UInt64(data=self._queue.head_index))
+            self._acknowledge(self._queue.head_index)
             return
         if self._epoch != block.epoch and self._mode == 'owner':
             self._epoch = block.epoch
@@ -671,7 +769,24 @@ class PlantSimulatorNode(Node):
             first = self._queue.head_index
             setpoints, _ = self._queue.pop(self._queue.queued)
             self._simulate(first, setpoints, self._sim_time_ns())
-            self._pub_ack.publish(UInt64(data=self._queue.head_index))
+            self._acknowledge(self._queue.head_index)
+
+    def _acknowledge(self, index: int) -> None:
+        """Publish how far the excitation is consumed (again later if nothing follows)."""
+        self._pub_ack.publish(UInt64(data=int(index)))
+        self._ack = (int(index), time.monotonic(), 0)
+
+    def _repeat_acknowledgement(self) -> None:
+        """Steady timer: the last acknowledgement again while no excitation follows it."""
+        if self._ack is None:
+            return
+        index, at, repeats = self._ack
+        now = time.monotonic()
+        if repeats >= ACK_REPEATS or now - at < ACK_REPEAT_S:
+            return
+        self._pub_ack.publish(UInt64(data=index))
+        self._ack = (index, now, repeats + 1)
+        self._acks_repeated += 1
 
     def _wall_tick(self) -> None:
         if self._sim is None:
@@ -687,7 +802,7 @@ class PlantSimulatorNode(Node):
             self._wall_index += block
             budget -= 1
             if had:
-                self._pub_ack.publish(UInt64(data=self._queue.head_index))
+                self._acknowledge(self._queue.head_index)
 
     # -- controller interface --------------------------------------------------------------
 
@@ -792,7 +907,7 @@ class PlantSimulatorNode(Node):
         lock.index += n
         self._sim_samples = lock.index
         if real:
-            self._pub_ack.publish(UInt64(data=self._queue.head_index))
+            self._acknowledge(self._queue.head_index)
         # The state at t_k is the block's last sample, k N; stamped with simulated time.
         stamp_ns = int(round((lock.index - 1) * 1e9 / self._rate))
         truth = out[self._row['position_true_m']]
@@ -878,6 +993,8 @@ class PlantSimulatorNode(Node):
         return counts
 
     def _publish_diagnostics(self) -> None:
+        self._check_clock()
+        self._announce_readiness()
         values = dict(self._queue.counters())
         values.update({'time_mode': self._mode, 'sample_rate_Hz': self._rate,
                        'simulated_samples': self._sim_samples,
@@ -893,6 +1010,7 @@ class PlantSimulatorNode(Node):
                        'states_published': self._states.published,
                        'states_decimated': self._states.decimated,
                        'excitation_subscribed': self._excitation_timer is None,
+                       'acknowledgements_repeated': self._acks_repeated,
                        **self._flow.counters()})
         if self._mode == 'lockstep':
             lock = self._lock

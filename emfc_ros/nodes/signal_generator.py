@@ -11,6 +11,9 @@ Topics (relative to the node namespace):
   consumer is matched; an unacknowledged window is re-sent after ``ack_timeout_s`` and a
   consumer silent for ``consumer_timeout_s`` puts the node in state ``error``
   (:class:`emfc_ros.core.pacing.ConsumerPacer`).
+- ``excitation/ready`` (``std_msgs/String``, in, latched): the applier's (plant simulator's,
+  bridge's) readiness, JSON ``{node, ready, waiting}``; with ``start_gate`` ``applier``
+  sample 0 waits until an applier is ready and matched (:mod:`emfc_ros.core.start_gate`).
 - ``~/status`` (``std_msgs/String``, out, latched): JSON with state, sample index, section.
 - ``~/done`` (``std_msgs/Bool``, out, latched): true once the experiment has been sent.
 - ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``, out, 1 Hz).
@@ -31,6 +34,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy
 from std_msgs.msg import Bool, Float64MultiArray, String, UInt64
 from std_srvs.srv import Trigger
 
@@ -39,8 +43,10 @@ from emfc_ros.core.config import unflatten
 from emfc_ros.core.pacing import ClockPacer, ConsumerPacer
 from emfc_ros.core.paths import config_file
 from emfc_ros.core.signals import Experiment, experiment_from_config, load_experiment_file
+from emfc_ros.core.start_gate import (parse_endpoints, Readiness, ReadinessError,
+                                      resolve_gate, StartGate)
 from emfc_ros.nodes.convert import (
-    BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS,
+    ACK_QOS, BLOCK_QOS, BlockMessageBuilder, description_to_msg, LATCHED_QOS,
     node_diagnostics)
 from emfc_ros.nodes.params import (declare_table, pending_refusals, refuse_choice,
                                    refuse_unknown)
@@ -48,6 +54,7 @@ from emfc_ros.nodes.spin import node_main
 
 DEFAULT_EXPERIMENT = 'identification_trajectory.yaml'
 PACING = ('wall', 'consumer')
+START_GATES = ('auto', 'applier', 'subscribers', 'none')
 CHANNEL_TEXT = {
     'coil': 'setpoint voltage of the coil (compensation) power amplifier',
     'load_changer': 'setpoint voltage of the load-changer power amplifier',
@@ -68,12 +75,20 @@ PARAMETERS = {
     'tick_period_s': (0.0, 'period of the publishing timer [s], 1e-4 to 1; 0: automatic '
                            '(half the lead time, 1 ms to 20 ms)'),
     'max_blocks_per_tick': (64, 'most blocks published per timer tick [blocks], 1 to 10000'),
+    'start_gate': ('auto', "what sample 0 waits for after start: 'applier' = the node that "
+                           'applies the excitation (plant_simulator, daq_bridge) announced '
+                           'ready on excitation/ready and every subscription to the '
+                           "excitation is matched; 'subscribers' = min_subscribers alone; "
+                           "'none' = nothing; 'auto' = applier with consumer pacing, "
+                           'subscribers with wall pacing'),
     'min_subscribers': (0, 'after start, hold sample 0 until this many subscriptions match '
-                           'the excitation publisher [count], 0 to 100; consumer pacing '
-                           'always waits for at least 1 and for a publisher on '
-                           'excitation/consumed'),
-    'ack_timeout_s': (1.0, 'consumer pacing: samples unacknowledged for this long are sent '
-                           'again from the last acknowledgement [s], 0.01 to 3600'),
+                           "the excitation publisher [count], 0 to 100, the applier's "
+                           'included (2: the applier and a recorder of the excitation); '
+                           'consumer pacing always waits for at least 1 and for a publisher '
+                           'on excitation/consumed'),
+    'ack_timeout_s': (3.0, 'consumer pacing: samples unacknowledged for this long are sent '
+                           'again from the last acknowledgement [s], 0.01 to 3600 (above the '
+                           "plant simulator's 2 s bound on waiting for its subscribers)"),
     'consumer_timeout_s': (10.0, 'consumer pacing: no acknowledgement for this long while '
                                  'samples are in flight puts the node in state error [s], '
                                  'ack_timeout_s to 86400'),
@@ -107,6 +122,7 @@ class SignalGeneratorNode(Node):
         declare_table(self, PARAMETERS, LIMITS)
         refuse_unknown(self, [*PARAMETERS, 'experiment.'])
         refuse_choice(self, 'pacing', PACING)       # blocks ~/arm until set (pending_refusals)
+        refuse_choice(self, 'start_gate', START_GATES)
         self._state = 'idle'
         self._error = ''
         self._experiment: Optional[Experiment] = None
@@ -121,6 +137,11 @@ class SignalGeneratorNode(Node):
         self._builder = BlockMessageBuilder()
         self._rejected_acks = 0
         self._waiting = ''
+        self._gate: Optional[StartGate] = None
+        self._gate_checked_s = 0.0
+        self._gate_waiting = ''
+        self._announcements: Dict[str, Readiness] = {}
+        self._bad_readiness = 0
         # Timers run on the steady clock: with use_sim_time the node clock stands still
         # until /clock moves, which is what a waiting generator must report, not wait for.
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
@@ -133,7 +154,8 @@ class SignalGeneratorNode(Node):
         self._pub_done = self.create_publisher(Bool, '~/done', LATCHED_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._sub_ack = self.create_subscription(UInt64, 'excitation/consumed',
-                                                 self._on_consumed, CONTROL_QOS)
+                                                 self._on_consumed, ACK_QOS)
+        self.create_subscription(String, 'excitation/ready', self._on_ready, LATCHED_QOS)
         self.create_service(Trigger, '~/arm', self._srv_arm)
         self.create_service(Trigger, '~/start', self._srv_start)
         self.create_service(Trigger, '~/stop', self._srv_stop)
@@ -195,6 +217,10 @@ class SignalGeneratorNode(Node):
             elif p.name == 'pacing' and p.value not in PACING:
                 return SetParametersResult(
                     successful=False, reason=f'pacing must be one of {list(PACING)}, '
+                                             f'got {p.value!r}')
+            elif p.name == 'start_gate' and p.value not in START_GATES:
+                return SetParametersResult(
+                    successful=False, reason=f'start_gate must be one of {list(START_GATES)}, '
                                              f'got {p.value!r}')
             elif p.name == 'tick_period_s' and (
                     p.type_ != Parameter.Type.DOUBLE or not (
@@ -274,6 +300,11 @@ class SignalGeneratorNode(Node):
         rate = self._experiment.sample_rate_Hz
         self._started_at = time.monotonic()
         lead_blocks = int(self._param('lead_blocks'))
+        pacing = str(self._param('pacing'))
+        self._gate = StartGate(resolve_gate(str(self._param('start_gate')), pacing),
+                               self._min_subscribers, dict(self._announcements))
+        self._gate_checked_s = 0.0
+        self._gate_waiting = ''
         if self._param('pacing') == 'wall':
             self._clock_pacer = ClockPacer(rate, block, lead_blocks, self._started_at)
             self._consumer_pacer = None
@@ -334,6 +365,48 @@ class SignalGeneratorNode(Node):
 
     # -- streaming -------------------------------------------------------------------------
 
+    def _on_ready(self, msg: String) -> None:
+        try:
+            readiness = Readiness.from_json(msg.data)
+        except ReadinessError as exc:
+            self._bad_readiness += 1
+            self.get_logger().warning(f'malformed excitation/ready ignored: {exc}',
+                                      throttle_duration_sec=5.0)
+            return
+        self._announcements[readiness.node] = readiness
+        if self._gate is not None:
+            self._gate.announce(readiness)
+            self._gate_checked_s = 0.0          # look again at the next tick
+
+    def _gate_closed(self) -> bool:
+        """
+        Whether sample 0 still waits (start_gate); says what for when that changes.
+
+        The graph is looked at every 20 ms at most (and at once after an announcement).
+        """
+        now = time.monotonic()
+        if now - self._gate_checked_s < 0.02:
+            return bool(self._gate_waiting)
+        self._gate_checked_s = now
+        topic = self._pub_blocks.topic_name
+        endpoints = parse_endpoints(
+            (i.node_namespace, i.node_name,
+             i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL)
+            for i in self.get_subscriptions_info_by_topic(topic))
+        waiting = self._gate.waiting_for(endpoints, self._pub_blocks.get_subscription_count())
+        if waiting != self._gate_waiting:
+            self._gate_waiting = waiting
+            self._waiting = f'start gate: {waiting}' if waiting else ''
+            if waiting:
+                self.get_logger().info(f'epoch {self._epoch}: sample 0 waits for {waiting}')
+            else:
+                self.get_logger().info(
+                    f'epoch {self._epoch}: start gate ({self._gate.kind}) open with '
+                    f'{self._pub_blocks.get_subscription_count()} subscription(s) matched; '
+                    'sending from sample 0')
+            self._publish_status()
+        return bool(waiting)
+
     def _on_consumed(self, msg: UInt64) -> None:
         pacer = self._consumer_pacer
         if pacer is None or self._state not in ('running', 'done'):
@@ -347,6 +420,9 @@ class SignalGeneratorNode(Node):
     def _consumer_allowed(self) -> Optional[int]:
         """Poll the consumer pacer: rewind for a re-send, report waiting, or fail."""
         pacer = self._consumer_pacer
+        if not pacer.started and self._next_index == 0 and self._gate_closed():
+            pacer.reset(time.monotonic())
+            return None
         decision = pacer.poll(time.monotonic(), self._pub_blocks.get_subscription_count(),
                               self._sub_ack.get_publisher_count())
         if decision.error:
@@ -354,8 +430,10 @@ class SignalGeneratorNode(Node):
             self._state = 'error'
             self._error = decision.error
             self._waiting = ''
-            self.get_logger().error(f'consumer pacing stalled: {decision.error}; call ~/start '
-                                    'to run the experiment again in a new epoch')
+            self.get_logger().error(
+                f'consumer pacing stalled: {decision.error}; the node that applies the '
+                'excitation stopped answering (is it running? its /diagnostics say why); '
+                'call ~/start to run the experiment again in a new epoch')
             self._publish_status()
             return None
         before, self._waiting = self._waiting, decision.waiting
@@ -390,9 +468,8 @@ class SignalGeneratorNode(Node):
         experiment = self._experiment
         total = experiment.total_samples
         if self._clock_pacer is not None:
-            if self._next_index == 0 and \
-                    self._pub_blocks.get_subscription_count() < self._min_subscribers:
-                # Not started yet: the clock of sample 0 starts when the consumers are there.
+            if self._next_index == 0 and self._gate_closed():
+                # Not started yet: the clock of sample 0 starts when the gate opens.
                 self._started_at = time.monotonic()
                 self._clock_pacer.start_time_s = self._started_at
                 return
@@ -510,12 +587,19 @@ class SignalGeneratorNode(Node):
         values.update({'blocks_sent': self._blocks_sent,
                        'elapsed_s': f'{elapsed:.3f}',
                        'sample_rate_Hz': rate,
-                       'rejected_acknowledgements': self._rejected_acks})
+                       'rejected_acknowledgements': self._rejected_acks,
+                       'malformed_readiness': self._bad_readiness,
+                       'start_gate': self._gate.kind if self._gate is not None else '',
+                       'appliers_ready': ','.join(sorted(
+                           n for n, r in self._announcements.items() if r.ready))})
         if self._clock_pacer is not None and self._state == 'running':
             lag = self._clock_pacer.lag_s(time.monotonic(), self._next_index, rate)
             values['lag_s'] = f'{lag:.6f}'
         if self._state == 'error':
             level, message = DiagnosticStatus.ERROR, self._error
+        elif self._waiting.startswith('start gate: '):
+            level, message = DiagnosticStatus.WARN, f'{self._state}: sample 0 waits for ' \
+                f'{self._waiting[len("start gate: "):]}'
         elif self._waiting:
             article = 'a' if self._waiting.startswith('consumer') else 'an'
             level, message = DiagnosticStatus.WARN, f'{self._state}: waiting for {article} ' \

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import faulthandler
 import signal
 import sys
 import time
@@ -74,14 +75,24 @@ def run_node(factory: Callable[[], Node], args: Optional[List[str]] = None,
         # A second Ctrl-C must not cut the cleanup short (the recorder closes its bag here):
         # from now on SIGINT is ignored; the cleanup is short and bounded.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-        if node is not None:
-            setattr(node, SHUTTING_DOWN_ATTRIBUTE, True)
-            node_logger(node).info(f'shutting down: {why}')
-            node.destroy_node()
-        rclpy.try_shutdown()
+        # rclpy's destroy_node can spin for ever at full CPU, holding the GIL, when Ctrl-C
+        # interrupted a callback while it had borrowed a handle (seen once: a generator
+        # after a double Ctrl-C, not even SIGTERM ended it). faulthandler's watchdog runs
+        # without the GIL: it prints where the process hung and exits with code 1.
+        faulthandler.dump_traceback_later(SHUTDOWN_LIMIT_S, exit=True)
+        try:
+            if node is not None:
+                setattr(node, SHUTTING_DOWN_ATTRIBUTE, True)
+                node_logger(node).info(f'shutting down: {why}')
+                node.destroy_node()
+            rclpy.try_shutdown()
+        finally:
+            faulthandler.cancel_dump_traceback_later()
     return 0
 
 
+#: Longest shutdown (the recorder closing its bag included) before the process is ended [s].
+SHUTDOWN_LIMIT_S = 60.0
 #: How long an exception may precede the shutdown that caused it [s] (see run_node).
 SHUTDOWN_RACE_S = 0.5
 

@@ -15,7 +15,10 @@ import sys
 import pytest
 import yaml
 
+from emfc_ros.core.bag import read_streams
 from emfc_ros.core.ident.balance_experiment import time_scaled_mapping
+from emfc_ros.core.ident.errors import IdentificationError
+from emfc_ros.core.ident.from_bag import experiment_sections
 from emfc_ros.core.ident.offnominal import (draw_balance, record_draw, TEST_SEEDS,
                                             with_noise_position, with_position_gain)
 from emfc_ros.core.paths import config_file
@@ -36,14 +39,14 @@ def record():
     return record_draw(draw_balance(SEED), SEED, experiment=exp, draw_seed=SEED)
 
 
-def bag_of(record, folder: Path) -> Path:
+def bag_of(record, folder: Path, **kwargs) -> Path:
     rec = record.recording
     return ident_bags.write_experiment_bag(folder / 'bag', rec.channels, rec.sample_rate_Hz,
                                            record.section_table,
                                            extra={'load_mass_kg': record.known_load_mass_kg,
                                                   'load_changer_coupled':
                                                       record.load_changer_coupled,
-                                                  'time_mode': 'simulated'})
+                                                  'time_mode': 'simulated'}, **kwargs)
 
 
 def identify(bag: Path, out: Path, *extra: str) -> subprocess.CompletedProcess:
@@ -67,6 +70,24 @@ def test_an_intact_bag_is_identified(record, tmp_path):
     summary = (tmp_path / 'out' / 'summary.md').read_text()
     assert 'plot failed' not in summary
     assert all(name in summary for name in names)
+
+
+def test_the_excitation_description_alone_is_enough(record, tmp_path):
+    """
+    A recording of the measurements with the excitation's description but not its blocks.
+
+    The measurements hold the applied setpoints; the description carries the sections (the
+    message asked to record the description, which was recorded, before issue 27). Without
+    the description the message says it was not recorded.
+    """
+    bag = bag_of(record, tmp_path / 'no_blocks', excitation_blocks=False)
+    sections = experiment_sections(bag, read_streams(bag), '/emfc')
+    assert [s['name'] for s in sections] == [s[0] for s in record.section_table]
+    bare = bag_of(record, tmp_path / 'nothing', excitation_blocks=False,
+                  excitation_description=False)
+    with pytest.raises(IdentificationError,
+                       match='/emfc/excitation/description was not recorded'):
+        experiment_sections(bare, read_streams(bare), '/emfc')
 
 
 @pytest.mark.slow

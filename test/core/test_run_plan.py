@@ -177,10 +177,20 @@ def test_bridge_plan_checks_the_emulator_backend_and_the_timeout():
     assert plan.bridge.parameters['inputs'] == ['coil_setpoint_V', 'position_m']
 
 
-def test_without_override_the_parameters_file_inputs_are_refused_naming_the_file():
+def test_without_override_the_parameters_file_inputs_are_refused_naming_the_file(tmp_path):
+    # The shipped daq_bridge_udp.yaml has every channel the identification needs ...
     cfg = _bridge_cfg()
-    del cfg['bridge']['parameters']['inputs']   # daq_bridge_udp.yaml lacks the load changer's
+    del cfg['bridge']['parameters']['inputs']
+    shipped = Path(config_file('experiment_bridge_emulator.yaml')).parent
+    assert 'load_changer_current_A' in plan_from_mapping(cfg, shipped).bridge.parameters[
+        'inputs']
+    # ... a parameters file without the load changer's is refused, naming the file.
+    params = yaml.safe_load(Path(config_file('daq_bridge_udp.yaml')).read_text())
+    params['/**']['ros__parameters']['inputs'] = ['coil_setpoint_V', 'coil_current_A',
+                                                  'sensor_V', 'position_m']
+    (tmp_path / 'four_inputs.yaml').write_text(yaml.safe_dump(params))
+    cfg['bridge']['parameters_file'] = str(tmp_path / 'four_inputs.yaml')
     with pytest.raises(ConfigError, match='load_changer_current_A') as info:
-        plan_from_mapping(cfg, Path(config_file('experiment_bridge_emulator.yaml')).parent)
+        plan_from_mapping(cfg, shipped)
     assert info.value.key.startswith('run.bridge.parameters_file (')
-    assert info.value.key.endswith('daq_bridge_udp.yaml): inputs')
+    assert info.value.key.endswith('four_inputs.yaml): inputs')

@@ -3,7 +3,8 @@ package.xml declares what the installed code imports (the stand-in for ``rosdep 
 
 ``rosdep install --from-paths src`` (README, install 3.) installs a package's ``package.xml``
 dependencies; it needs a ROS distribution and its database, which are not here. This checks
-the input it reads: every ROS package and library the installed modules import is an
+the input it reads: every ROS package and library the installed modules and launch files
+import is an
 ``exec_depend`` (Python libraries under their rosdep keys), except the libraries the README
 says to install with pip (``rosbags``, ``mcap``, ``threadpoolctl``) and the optional extra
 ``plot`` (``matplotlib``). numba is a requirement (issue 14): in ``install_requires`` and in
@@ -38,7 +39,9 @@ def imported_top_level(root: Path) -> set:
 def test_every_import_is_an_exec_depend_or_a_documented_pip_install():
     manifest = ElementTree.parse(REPO / 'package.xml').getroot()
     declared = {e.text.strip() for e in manifest.iter('exec_depend')}
-    needed = {ROSDEP_KEYS.get(n, n) for n in imported_top_level(REPO / 'emfc_ros')} - PIP_ONLY
+    # the installed modules and the launch files (they import launch and launch_ros)
+    imported = imported_top_level(REPO / 'emfc_ros') | imported_top_level(REPO / 'launch')
+    needed = {ROSDEP_KEYS.get(n, n) for n in imported} - PIP_ONLY
     assert needed - declared == set(), 'imported but not in package.xml'
     assert declared - needed == set(), 'in package.xml but never imported'
     assert manifest.find('export/build_type').text == 'ament_python'

@@ -16,11 +16,12 @@ import importlib.util
 import os
 from pathlib import Path
 import shlex
+import sys
 from typing import Dict, List, Sequence, Tuple
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchContext, LaunchDescription
-from launch_ros.actions import NodeProcess
+from launch_ros.actions import Node as NodeAction, NodeProcess
 
 
 @dataclass
@@ -179,12 +180,19 @@ def launch(path: Path, arguments: Sequence[str], params_dir: Path) -> Launched:
             raise RuntimeError('Included launch description missing required argument '
                                f"'{argument.name}' (description: '{argument.description}'), "
                                f"given: [{', '.join(given)}]")
-    context = LaunchContext()
+    context = LaunchContext(argv=list(arguments))
+    context.locals.current_launch_file_path = str(path)
     context.launch_configurations.update(parsed)
     processes = []
-    for entity in description.entities:
-        if getattr(entity, 'IS_LAUNCH_ARGUMENT', False):
-            entity.execute(context)
-        else:
-            processes.append(entity.execute(context, params_dir))
+    # What ``ros2 launch <package> <file> ...`` has in sys.argv (a file checks whether it is
+    # the one on the command line, emfc_ros.launch_support).
+    argv, sys.argv = sys.argv, ['ros2', 'launch', 'emfc_ros', path.name, *arguments]
+    try:
+        for entity in description.entities:
+            if isinstance(entity, NodeAction):
+                processes.append(entity.execute(context, params_dir))
+            else:
+                entity.execute(context)
+    finally:
+        sys.argv = argv
     return Launched(processes, context, description)

@@ -23,6 +23,7 @@ from std_srvs.srv import Trigger
 from emfc_ros.core.bag import BagWriter, OfferedQos, read_streams
 from emfc_ros.core.device import DeviceEmulator, Faults
 from emfc_ros.core.device import protocol as proto
+from emfc_ros.core.device.faults import describe
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, block_to_msg, LATCHED_QOS, msg_to_block, msg_to_description)
 from emfc_ros.nodes.daq_bridge import DaqBridgeNode
@@ -310,6 +311,13 @@ def test_a_stream_taken_after_its_sample_0_is_a_latched_fault(executor, ros_cont
     (fault,) = bridge.faults()
     assert fault.kind == 'excitation_start_missing' and fault.exact
     assert 'samples 0 to 4999' in fault.message
+    # Recorded where sample 0 would have been applied, spanning the samples never applied:
+    # what emfc-identify and the runner name as not applied is 0 to 4999 (it named the
+    # applied ones, 5000 to the end, before issue 27).
+    offset = int(bridge.diagnostic_values()['excitation_offset_samples'])
+    assert (fault.device_index, fault.samples) == (offset, 5000)
+    assert fault.experiment_range(offset, 400000) == (0, 5000)
+    assert 'experiment samples 0 to 4999 not applied' in describe([fault], offset, 400000)
     # It was applied from there on, as mapped.
     assert ros_harness.spin_until(
         executor, lambda: np.any(np.abs(applied(probe)[1] - 0.25) <= DAC_LSB_V), TIMEOUT_S)
@@ -650,7 +658,8 @@ def test_node_process_with_the_shipped_params_file(executor, ros_context, proces
     assert ros_harness.spin_until(executor, lambda: len(probe.blocks) >= 3
                                   and probe.descriptions, TIMEOUT_S), proc.output()
     desc = msg_to_description(probe.descriptions[-1])
-    assert desc.channel_names == ('coil_setpoint_V', 'coil_current_A', 'sensor_V',
+    assert desc.channel_names == ('coil_setpoint_V', 'load_changer_setpoint_V',
+                                  'coil_current_A', 'load_changer_current_A', 'sensor_V',
                                   'position_m')
     firsts = [b[0] for b in probe.blocks]
     assert firsts == list(range(firsts[0], firsts[0] + 1000 * len(firsts), 1000))

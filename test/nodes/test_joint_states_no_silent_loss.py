@@ -103,19 +103,14 @@ def test_every_published_joint_state_is_recorded_at_full_speed(tmp_path, process
     plant = processes.start(_argv('plant_simulator', {
         'time_mode': 'owner', 'load_mass_kg': 0.1274, 'state_rate_Hz': STATE_RATE_HZ,
         'publish_groups': False, 'min_subscribers': 1}))
-    # and, unlike in the launch file (which leaves the generator's default: it holds sample 0
-    # for its consumer, the plant), the generator here also waits for the recorder's
-    # subscription to the excitation (2 in all), because this test asserts that every
-    # excitation block is in the bag. The launch file cannot ask for 2: a recorder of the
-    # measurements only would keep its generator waiting; recorded after the launch, as the
-    # README says, the excitation is in the bag from sample 0 without it
-    # (test_launch_files.py::test_sim_experiment_answers_the_whole_default_trajectory).
+    # and, as the launch file (start_gate applier, excitation_subscribers 2), the generator
+    # waits for the plant, ready, and for the recorder's subscription to the excitation.
     generator = processes.start(_argv('signal_generator', {
         'experiment_file': str(experiment), 'pacing': 'consumer', 'block_size': 1000,
-        'min_subscribers': 2}))
+        'start_gate': 'applier', 'min_subscribers': 2}))
     assert ros_harness.spin_until(
         executor, lambda: watcher.plant and watcher.generator.get('waiting', '').startswith(
-            'consumer'), START_TIMEOUT_S), \
+            'start gate: /emfc/plant_simulator to be ready'), START_TIMEOUT_S), \
         f'{watcher.generator}\n{generator.output()}\n{plant.output()}'
     # then the README's recorder line for that experiment, as typed (simulated time, /clock
     # recorded), in the test's folder, after the launch as the README says.

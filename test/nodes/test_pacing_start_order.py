@@ -23,6 +23,7 @@ import yaml
 from emfc_ros.core.blocks import Continuity, SequenceTracker
 from emfc_ros.core.config import unflatten
 from emfc_ros.core.signals import experiment_from_config
+from emfc_ros.core.start_gate import readiness_text
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, CONTROL_QOS, LATCHED_QOS, msg_to_block, msg_to_description)
 import ros_harness
@@ -32,8 +33,8 @@ LAUNCH_FILE = REPO / 'launch' / 'sim_experiment.launch.py'
 #: The first start after an install compiles the simulator kernel (12-17 s measured).
 START_TIMEOUT_S = 180.0
 TIMEOUT_S = 60.0
-#: The pause between the two starts [s]: longer than discovery (1-3 s) and than the
-#: generator's ack_timeout_s, so that a lost first window would have been lost for good.
+#: The pause between the two starts [s]: longer than discovery (1-3 s), so that a window sent
+#: before the consumer matched would have been lost.
 PAUSE_S = 3.0
 LOAD_MASS_KG = 0.1274
 BLOCK_SIZE = 250
@@ -91,8 +92,25 @@ def node_argv(name, params):
     return argv
 
 
+def launch_argument_defaults():
+    """The default of every ``DeclareLaunchArgument`` of ``sim_experiment.launch.py``."""
+    out = {}
+    for node in ast.walk(ast.parse(LAUNCH_FILE.read_text())):
+        if isinstance(node, ast.Call) and getattr(node.func, 'id', None) == \
+                'DeclareLaunchArgument':
+            kwargs = {kw.arg: kw.value for kw in node.keywords}
+            if isinstance(kwargs.get('default_value'), ast.Constant):
+                out[ast.literal_eval(node.args[0])] = kwargs['default_value'].value
+    return out
+
+
 def generator_argv(experiment_file, **extra):
     params = dict(launch_literal_parameters()['signal_generator'])
+    defaults = launch_argument_defaults()
+    # What the launch file gives the generator from its arguments' defaults; nothing here
+    # records the excitation, so one subscription (the plant's), as the docs say.
+    params.update({'pacing': defaults['pacing'], 'start_gate': defaults['start_gate'],
+                   'window_blocks': int(defaults['window_blocks']), 'min_subscribers': 1})
     params.update({'experiment_file': str(experiment_file), 'block_size': BLOCK_SIZE})
     params.update(extra)
     return node_argv('signal_generator', params)
@@ -129,8 +147,12 @@ class Observer:
         if listen:
             self.listen()
         if silent_consumer:
-            # A consumer of the excitation that matches like the plant and never answers.
+            # A consumer of the excitation that matches like the plant (ready, as the plant
+            # announces itself) and never answers.
             self.ack = self.node.create_publisher(UInt64, 'excitation/consumed', CONTROL_QOS)
+            self.ready = self.node.create_publisher(String, 'excitation/ready', LATCHED_QOS)
+            self.ready.publish(String(data=readiness_text(
+                self.node.get_fully_qualified_name(), True)))
             self.node.create_subscription(Float64MultiArray, 'excitation',
                                           lambda m: self.excitation.append(msg_to_block(m)),
                                           BLOCK_QOS)
@@ -177,7 +199,9 @@ def _pause(executor, seconds):
 
 def test_the_launch_file_gives_the_parameters_this_test_uses():
     params = launch_literal_parameters()
-    assert params['signal_generator']['pacing'] == 'consumer'
+    defaults = launch_argument_defaults()
+    assert defaults['pacing'] == 'consumer' and defaults['start_gate'] == 'applier'
+    assert defaults['excitation_subscribers'] == '2' and defaults['min_subscribers'] == '1'
     assert params['plant_simulator']['time_mode'] == 'owner'
 
 
@@ -197,26 +221,28 @@ def test_any_start_order_answers_the_whole_experiment(tmp_path, processes, execu
         # late): the plant does not take the excitation, the generator holds sample 0.
         plant = processes.start(plant_argv())
         gen = processes.start(generator_argv(experiment_file))
+        # The generator names what it waits for: the plant, which waits for a listener.
         assert ros_harness.spin_until(
             executor, lambda: observer.status is not None and observer.plant_seen
-            and observer.status['waiting'].startswith('consumer'), START_TIMEOUT_S), \
+            and 'plant_simulator to be ready (it waits for 1 subscription(s) to '
+            '/emfc/measurements' in observer.status['waiting'], START_TIMEOUT_S), \
             f'{observer.status}\n{gen.output()}\n{plant.output()}'
         _pause(executor, PAUSE_S)
         assert observer.status['next_sample_index'] == 0, observer.status
-        assert observer.status['waiting'].startswith('consumer'), observer.status
+        assert observer.status['waiting'].startswith('start gate: '), observer.status
         observer.listen()
     elif first == 'signal_generator':
         gen = processes.start(generator_argv(experiment_file))
         # Autostarted, it holds sample 0 and says so while no consumer is there.
         assert ros_harness.spin_until(
             executor, lambda: observer.status is not None
-            and observer.status['waiting'].startswith('consumer'), START_TIMEOUT_S), \
-            gen.output()
+            and 'the node that applies the excitation' in observer.status['waiting'],
+            START_TIMEOUT_S), gen.output()
         _pause(executor, PAUSE_S)
         assert observer.status['state'] == 'running'
         assert observer.status['next_sample_index'] == 0
-        assert any(s.level == DiagnosticStatus.WARN and 'waiting for a consumer' in s.message
-                   for s in observer.generator_diagnostics)
+        assert any(s.level == DiagnosticStatus.WARN and 'sample 0 waits for the node that '
+                   'applies the excitation' in s.message for s in observer.generator_diagnostics)
         plant = processes.start(plant_argv())
     else:
         plant = processes.start(plant_argv())

@@ -163,18 +163,25 @@ def test_the_install_lines_start_the_generator_on_the_shipped_trajectory(
 
 def test_generator_service_call_recorder_and_bag_tools_as_typed(tmp_path, processes, executor,
                                                                 ros_context):
+    """
+    The signal_generator block: the node armed (autostart:=false), a recorder, ~/start.
+
+    The recorder started between the two lines records the whole shipped trajectory from
+    sample 0 (40 s at the wall clock's pace); the bag tools then read it.
+    """
     observer = Observer(ros_context, '/emfc')
     executor.add_node(observer.node)
     # ros2 run emfc_ros signal_generator --ros-args -r __ns:=/emfc --params-file config/...
     generator_argv = readme_lines.readme_argv(
         'ros2 run emfc_ros signal_generator --ros-args -r __ns:=/emfc --params-file')
+    assert 'autostart:=false' in generator_argv
     generator = processes.start(as_started(generator_argv), cwd=REPO)
     assert ros_harness.spin_until(
-        executor, lambda: len(observer.blocks['excitation']) >= 3
-        and observer.status.get('signal_generator', {}).get('state') == 'running',
-        START_TIMEOUT_S), generator.output()
+        executor, lambda: observer.status.get('signal_generator', {}).get('state') == 'armed'
+        and 'excitation' in observer.descriptions, START_TIMEOUT_S), generator.output()
     assert observer.descriptions['excitation'].total_samples == SHIPPED_TRAJECTORY_SAMPLES
     assert observer.descriptions['excitation'].source == '/emfc/signal_generator'
+    assert observer.blocks['excitation'] == []          # armed: nothing sent yet
 
     # The recorder section's line, in the user's folder (output:=my_experiment).
     recorder_argv = readme_lines.readme_argv(
@@ -182,24 +189,16 @@ def test_generator_service_call_recorder_and_bag_tools_as_typed(tmp_path, proces
     recorder = processes.start(as_started(recorder_argv), cwd=tmp_path)
     assert ros_harness.spin_until(
         executor, lambda: '/emfc/excitation' in observer.status.get('recorder', {}).get(
-            'topics', []) and observer.status['recorder'].get('messages', 0) >= 10,
-        START_TIMEOUT_S), recorder.output()
+            'topics', []), START_TIMEOUT_S), recorder.output()
 
-    # `ros2 service call /emfc/signal_generator/start std_srvs/srv/Trigger`: while the
-    # autostarted experiment runs it is refused (and the stream goes on) ...
+    # `ros2 service call /emfc/signal_generator/start std_srvs/srv/Trigger` runs the armed
+    # experiment, epoch 1, from sample 0; its end is `done`.
     call = readme_lines.readme_argv('ros2 service call /emfc/signal_generator/start')
     answer = service_call(executor, observer.node, call)
-    assert not answer.success and answer.message == 'already running'
-    # ... once stopped it runs the experiment again from sample 0 in a new epoch.
-    stop = service_call(executor, observer.node,
-                        ['ros2', 'service', 'call', '/emfc/signal_generator/stop',
-                         'std_srvs/srv/Trigger'])
-    assert stop.success, stop.message
-    answer = service_call(executor, observer.node, call)
-    assert answer.success and answer.message == 'running epoch 2', answer.message
+    assert answer.success and answer.message == 'running epoch 1', answer.message
     assert ros_harness.spin_until(
-        executor, lambda: sum(b.epoch == 2 for b in observer.blocks['excitation']) >= 5,
-        TIMEOUT_S), generator.output()
+        executor, lambda: observer.status['signal_generator'].get('state') == 'done',
+        TIMEOUT_S + 45.0), generator.output()
     assert generator.stop() == 0, generator.output()
     ros_harness.spin_until(executor, lambda: False, 1.5)     # the last blocks reach the bag
     assert recorder.stop() == 0, recorder.output()           # Ctrl-C closes the bag
@@ -211,10 +210,8 @@ def test_generator_service_call_recorder_and_bag_tools_as_typed(tmp_path, proces
         blocks = [c for c in reader.connections if c.topic == '/emfc/excitation']
         headers = [tuple(int(v) for v in reader.deserialize(raw, c.msgtype).data[:3:2])
                    for c, _, raw in reader.messages(connections=blocks)]
-    epoch2 = [first for first, epoch in headers if epoch == 2]
-    assert epoch2[:5] == [0, 1000, 2000, 3000, 4000]
-    assert {epoch for _, epoch in headers} == {1, 2}
-    assert counts['/emfc/excitation/description'] >= 2       # latched, again per epoch
+    assert headers == [(first, 1) for first in range(0, SHIPPED_TRAJECTORY_SAMPLES, 1000)]
+    assert counts['/emfc/excitation/description'] >= 1       # latched
 
     # emfc-bag-info my_experiment: the counts the independent reader found.
     info = run(readme_lines.readme_argv('emfc-bag-info my_experiment'), cwd=tmp_path)
@@ -262,6 +259,38 @@ def test_device_emulator_and_bridge_lines_as_typed(tmp_path, processes, executor
     assert values['backend'] == 'udp' and values['state'] == 'running', values
     assert level != DiagnosticStatus.ERROR, message
     assert bridge.stop() == 0, bridge.output()
+    assert emulator.stop() == 0, emulator.output()
+
+
+def test_the_daq_bridge_page_lines_as_typed(tmp_path, processes, executor, ros_context):
+    """
+    docs/daq_bridge.md's first block: the emulator and both ``ros2 run`` bridge lines.
+
+    With the emulator's default (six analog inputs) the bridge's default inputs and those of
+    ``config/daq_bridge_udp.yaml`` are served (a 4-input default made the first bridge line
+    retry every 5 s for ever with no measurement).
+    """
+    argvs = readme_lines.fenced_argvs((REPO / 'docs' / 'daq_bridge.md').read_text())
+    emulator_argv = next(a for a in argvs if a[0] == 'emfc-device-emulator')
+    bridges = [a for a in argvs if a[:4] == ['ros2', 'run', 'emfc_ros', 'daq_bridge']][:2]
+    assert emulator_argv == ['emfc-device-emulator', '--port', '5555', '&']
+    assert len(bridges) == 2 and '--params-file' in bridges[1], bridges
+    emulator = processes.start(as_started(emulator_argv[:-1]), cwd=tmp_path)
+    assert ros_harness.wait_until(lambda: 'listening on' in emulator.output(), TIMEOUT_S)
+    for k, argv in enumerate(bridges):
+        observer = Observer(ros_context, '/emfc', streams=('measurements',),
+                            name=f'bridge_page_{k}')
+        executor.add_node(observer.node)
+        bridge = processes.start(as_started(argv), cwd=REPO)
+        blocks = _bridge_blocks(executor, observer, bridge)
+        assert contiguous(blocks) and all(b.n_samples == 1000 for b in blocks)
+        assert len(observer.descriptions['measurements'].channel_names) == 6
+        level, message, values = observer.diag('daq_bridge')
+        assert values['state'] == 'running' and level != DiagnosticStatus.ERROR, message
+        assert bridge.stop() == 0, bridge.output()
+        executor.remove_node(observer.node)
+        observer.node.destroy_node()
+        ros_harness.spin_until(executor, lambda: False, 0.5)
     assert emulator.stop() == 0, emulator.output()
 
 

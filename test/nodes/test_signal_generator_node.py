@@ -20,6 +20,7 @@ import yaml
 from emfc_ros.core.blocks import Continuity, SequenceTracker
 from emfc_ros.core.config import unflatten
 from emfc_ros.core.signals import experiment_from_config
+from emfc_ros.core.start_gate import readiness_text
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, CONTROL_QOS, LATCHED_QOS, msg_to_block, msg_to_description)
 from emfc_ros.nodes.signal_generator import SignalGeneratorNode
@@ -69,6 +70,11 @@ class Listener:
         self.kinds = []
         self.acknowledge = acknowledge
         self.ack = self.node.create_publisher(UInt64, 'excitation/consumed', CONTROL_QOS)
+        # A consumer of its own announces itself ready, as the plant and the bridge do (the
+        # generator's start gate with consumer pacing waits for it).
+        self.ready = self.node.create_publisher(String, 'excitation/ready', LATCHED_QOS)
+        self.ready.publish(String(data=readiness_text(self.node.get_fully_qualified_name(),
+                                                      True)))
         self.node.create_subscription(Float64MultiArray, 'excitation', self._on_block,
                                       BLOCK_QOS)
         self.node.create_subscription(String, 'excitation/description', self._on_desc,
@@ -233,7 +239,7 @@ def test_consumer_pacing_sends_a_lost_window_again(executor, ros_context, loss):
 def test_a_subscriber_that_does_not_acknowledge_does_not_start_the_stream(
         executor, ros_context):
     # A recorder (here: a plain subscription) up before the consumer must not make the
-    # generator send its first window into the void: sample 0 waits for an acknowledger.
+    # generator send its first window into the void: sample 0 waits for the applier.
     gen = SignalGeneratorNode(context=ros_context, parameter_overrides=small_overrides(
         pacing='consumer', block_size=100, window_blocks=3, autostart=True))
     recorder = rclpy.create_node('recorder_like', context=ros_context)
@@ -247,7 +253,8 @@ def test_a_subscriber_that_does_not_acknowledge_does_not_start_the_stream(
     executor.add_node(recorder)
     assert ros_harness.spin_until(
         executor, lambda: gen.count_subscribers('excitation') >= 1 and statuses
-        and 'publisher of acknowledgements' in statuses[-1]['waiting'], TIMEOUT_S), statuses
+        and 'the node that applies the excitation' in statuses[-1]['waiting'], TIMEOUT_S), \
+        statuses
     ros_harness.wait_until(lambda: False, 0.5, lambda: executor.spin_once(timeout_sec=0.02))
     assert recorded == [] and statuses[-1]['next_sample_index'] == 0
     assert statuses[-1]['state'] == 'running'

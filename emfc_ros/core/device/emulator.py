@@ -244,7 +244,7 @@ class DeviceEmulator:
     """
 
     def __init__(self, host: str = '127.0.0.1', port: int = 0, *, params: Any = None,
-                 seed: int = 0, max_inputs: int = 4, faults: Optional[Faults] = None,
+                 seed: int = 0, max_inputs: int = 6, faults: Optional[Faults] = None,
                  allow_remote: bool = False, record: bool = False,
                  simulator_options: Optional[Mapping[str, Any]] = None,
                  clock: Callable[[], float] = time.monotonic,

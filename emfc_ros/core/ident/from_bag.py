@@ -32,7 +32,8 @@ from typing import Any, Callable, Dict, Mapping, Optional, Tuple
 
 import yaml
 
-from emfc_ros.core.bag import custom_data, read_streams
+from emfc_ros.core.bag import custom_data, read_messages, read_streams
+from emfc_ros.core.blocks import StreamDescription
 from emfc_ros.core.ident import alignment, plant
 # DeviceFaultError: raised here and imported from here by the callers
 from emfc_ros.core.ident.alignment import DeviceFaultError, experiment_samples  # noqa: F401
@@ -256,11 +257,7 @@ def identify_bag(bag_path: Path, options: Optional[Mapping[str, Any]] = None,
     ns = find_namespace(streams, namespace)
     measurements = streams[f'{ns}/measurements']
     excitation = streams.get(f'{ns}/excitation')
-    description = excitation.description if excitation is not None else None
-    sections = description.extra.get('sections', []) if description is not None else []
-    if not sections:
-        raise IdentificationError(f'the bag has no section table: record '
-                                  f'{ns}/excitation/description with the experiment')
+    sections = experiment_sections(bag_path, streams, ns)
     offset = excitation_offset_samples(measurements, excitation, ns)
     n_excitation = experiment_samples(
         sections, excitation.first_sample_index + excitation.n_samples
@@ -283,6 +280,75 @@ def identify_bag(bag_path: Path, options: Optional[Mapping[str, Any]] = None,
             'plant_settings': settings, 'plant_settings_source': source}
     result.plant_source = source
     return result, info
+
+
+def experiment_sections(bag_path: Path, streams: Mapping[str, Any], ns: str) -> list:
+    """
+    The experiment's section table, from the excitation's recorded description.
+
+    Parameters
+    ----------
+    bag_path : pathlib.Path
+        The bag folder.
+    streams : mapping
+        Its block streams (:func:`~emfc_ros.core.bag.read_streams`).
+    ns : str
+        The experiment's namespace.
+
+    Returns
+    -------
+    list of dict
+        ``name``, ``first_sample_index``, ``n_samples`` per section.
+
+    Raises
+    ------
+    IdentificationError
+        If the description was not recorded or holds no section table.
+    """
+    excitation = streams.get(f'{ns}/excitation')
+    description = excitation.description if excitation is not None else None
+    if description is None:
+        # The excitation's blocks were not recorded (they are not needed: the measurements
+        # hold the setpoints); its latched description, which carries the sections, may be.
+        description = recorded_description(bag_path, f'{ns}/excitation')
+    sections = description.extra.get('sections', []) if description is not None else []
+    if not sections:
+        what = ('has no section table (extra.sections)' if description is not None else
+                'was not recorded')
+        raise IdentificationError(f'{ns}/excitation/description {what}: it carries the '
+                                  "experiment's sections; record it with the measurements "
+                                  '(the signal generator publishes it, latched)')
+    return list(sections)
+
+
+def recorded_description(bag_path: Path, topic: str) -> Optional[StreamDescription]:
+    """
+    The last stream description of ``topic`` recorded in a bag, read without its blocks.
+
+    Parameters
+    ----------
+    bag_path : pathlib.Path
+        The bag folder.
+    topic : str
+        The block topic (its ``/description`` is read).
+
+    Returns
+    -------
+    StreamDescription or None
+        None when the bag has no such description or it does not parse.
+    """
+    last = None
+    try:
+        for _, msg in read_messages(bag_path, topic + '/description'):
+            last = msg
+    except KeyError:
+        return None
+    if last is None:
+        return None
+    try:
+        return StreamDescription.from_json(last.data)
+    except ValueError:
+        return None
 
 
 def refuse_faults(bag_path: Path, measurements: Any, namespace: str, offset: int,

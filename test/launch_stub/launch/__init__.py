@@ -13,13 +13,15 @@ named in its docstring:
 
 - :class:`LaunchDescription` (``launch.LaunchDescription``): an ordered list of entities,
   ``get_launch_arguments()``;
-- :class:`LaunchContext` (``launch.LaunchContext``): ``launch_configurations``;
+- :class:`LaunchContext` (``launch.LaunchContext``): ``launch_configurations``, ``argv``,
+  ``locals.current_launch_file_path``;
 - :class:`Substitution`, :class:`TextSubstitution`, :func:`perform_substitutions`,
   :func:`normalize_to_list_of_substitutions` (``launch.substitution``,
   ``launch.utilities``);
 - :func:`coerce_to_type` (``launch.utilities.type_utils.coerce_to_type``): ``int(text)``,
   ``float(text)``, ``str``, YAML booleans, YAML rules without a type;
-- ``launch.actions.DeclareLaunchArgument``, ``launch.substitutions.LaunchConfiguration`` and
+- ``launch.actions.DeclareLaunchArgument`` and ``OpaqueFunction`` (returning no entities),
+  ``launch.substitutions.LaunchConfiguration`` and
   ``PathJoinSubstitution`` (their modules);
 - ``launch_ros.actions.Node``, ``launch_ros.parameter_descriptions.ParameterValue``,
   ``launch_ros.substitutions.FindPackageShare`` (package ``launch_ros`` next to this one);
@@ -39,6 +41,7 @@ from __future__ import annotations
 import importlib
 import importlib.abc
 import sys
+import types
 from typing import Any, Dict, Iterable, List, Optional
 
 import yaml
@@ -96,9 +99,16 @@ def refuse_keywords(what: str, kwargs: Dict[str, Any]) -> None:
 
 
 class LaunchContext:
-    """The launch configurations (``launch.LaunchContext``) and what the run produced."""
+    """
+    The launch configurations (``launch.LaunchContext``) and what the run produced.
 
-    def __init__(self) -> None:
+    ``argv`` holds the launch arguments of the command line (``LaunchService(argv=...)``);
+    ``locals.current_launch_file_path`` the file being launched (``IncludeLaunchDescription``).
+    """
+
+    def __init__(self, argv: Optional[List[str]] = None) -> None:
+        self.argv: List[str] = list(argv or [])
+        self.locals = types.SimpleNamespace()
         self.launch_configurations: Dict[str, str] = {}
         #: Warnings the real tool logs (e.g. a parameter file that is not a file).
         self.warnings: List[str] = []

@@ -1,11 +1,11 @@
-"""Stand-in for ``launch.actions``: ``DeclareLaunchArgument`` only (see ``launch``)."""
+"""Stand-in for ``launch.actions``: DeclareLaunchArgument, OpaqueFunction (see ``launch``)."""
 
 from __future__ import annotations
 
-from typing import Any, List, Optional
+from typing import Any, Callable, Dict, Iterable, List, Optional
 
 from launch import (LaunchContext, normalize_to_list_of_substitutions, perform_substitutions,
-                    refuse_keywords, refuse_missing)
+                    refuse_keywords, refuse_missing, UnsupportedByStub)
 
 
 class DeclareLaunchArgument:
@@ -80,6 +80,53 @@ class DeclareLaunchArgument:
         if self.choices is not None and value not in self.choices:
             raise RuntimeError(f'Argument "{self.name}" provided value "{value}" is not valid. '
                                f'Valid options are: {self.choices}')
+
+
+class OpaqueFunction:
+    """
+    Call a function at launch time (``launch.actions.OpaqueFunction`` of Jazzy).
+
+    Parameters
+    ----------
+    function : callable
+        Called as ``function(context, *args, **kwargs)``; may raise to end the launch.
+    args : iterable, optional
+        Positional arguments after the context.
+    kwargs : dict, optional
+        Keyword arguments.
+    **other
+        Refused.
+    """
+
+    STUB_ACTION = True
+
+    def __init__(self, *, function: Callable, args: Optional[Iterable[Any]] = None,
+                 kwargs: Optional[Dict[str, Any]] = None, **other: Any) -> None:
+        refuse_keywords('OpaqueFunction', other)
+        if not callable(function):
+            raise TypeError("OpaqueFunction expected a callable for 'function'")
+        self.function = function
+        self.args = list(args or [])
+        self.kwargs = dict(kwargs or {})
+
+    def execute(self, context: LaunchContext) -> None:
+        """
+        Call the function.
+
+        Parameters
+        ----------
+        context : LaunchContext
+            The launch context.
+
+        Raises
+        ------
+        UnsupportedByStub
+            If it returns entities (the stand-in launches none from a function).
+        """
+        entities = self.function(context, *self.args, **self.kwargs)
+        if entities:
+            raise UnsupportedByStub('entities returned by an OpaqueFunction are not '
+                                    'implemented by the test stand-in')
 
 
 def __getattr__(name: str) -> Any:

@@ -1,0 +1,171 @@
+"""
+What every launch file of the package shares: the common arguments and the argument check.
+
+Imported by ``launch/*.launch.py`` only (it needs ROS 2's ``launch`` and ``launch_ros``,
+which ``ros2 launch`` has; nothing else in the package imports this module).
+
+- :func:`common_arguments`: ``namespace`` (default ``emfc``; one experiment graph per
+  namespace) and ``discovery_range`` (the nodes' ``ROS_AUTOMATIC_DISCOVERY_RANGE``, default
+  ``LOCALHOST``).
+- :func:`refuse_undeclared`: an action that ends the launch with an error naming an
+  argument the file does not declare (``ros2 launch`` itself sets any ``name:=value`` as a
+  launch configuration and ignores it silently: ``use_sim_time:=false`` would do nothing).
+  It checks the arguments of the command line when this file is the one ``ros2 launch``
+  was given; a file included by another launch file gets its arguments from the including
+  file, which ``launch`` does not tell apart from that file's own configurations, so there
+  it checks nothing.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from typing import Iterable, List, Optional, Sequence
+
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.substitutions import LaunchConfiguration
+
+#: Values of ROS_AUTOMATIC_DISCOVERY_RANGE (rcl).
+DISCOVERY_RANGES = ['LOCALHOST', 'SUBNET', 'OFF', 'SYSTEM_DEFAULT']
+#: Suffixes of launch files on a ``ros2 launch`` command line.
+LAUNCH_SUFFIXES = ('.launch.py', '.launch.xml', '.launch.yaml', '.py', '.xml', '.yaml')
+
+
+def common_arguments() -> List[DeclareLaunchArgument]:
+    """
+    ``namespace`` and ``discovery_range``, declared the same way in every file.
+
+    Returns
+    -------
+    list of DeclareLaunchArgument
+        The two declarations.
+    """
+    return [
+        DeclareLaunchArgument(
+            'namespace', default_value='emfc',
+            description='namespace of every node of this launch (one experiment per '
+                        'namespace; a PushROSNamespace of an including file is prepended)'),
+        DeclareLaunchArgument(
+            'discovery_range', default_value='LOCALHOST', choices=DISCOVERY_RANGES,
+            description='ROS_AUTOMATIC_DISCOVERY_RANGE of the nodes: LOCALHOST keeps '
+                        'discovery on this computer (ROS_STATIC_PEERS in the environment '
+                        'adds named computers: README, Two computers); SUBNET multicasts '
+                        'it on every network this computer is on'),
+    ]
+
+
+def node_environment() -> dict:
+    """
+    The environment every node of a launch gets.
+
+    Returns
+    -------
+    dict
+        ``ROS_AUTOMATIC_DISCOVERY_RANGE`` from the ``discovery_range`` argument.
+    """
+    return {'ROS_AUTOMATIC_DISCOVERY_RANGE': LaunchConfiguration('discovery_range')}
+
+
+def command_line_launch_file(argv: Sequence[str]) -> Optional[str]:
+    """
+    The launch file a ``ros2 launch`` command line names, if ``argv`` is one.
+
+    Parameters
+    ----------
+    argv : sequence of str
+        The process's arguments (``sys.argv``).
+
+    Returns
+    -------
+    str or None
+        The file's name or path as typed (``ros2 launch emfc_ros sim_experiment.launch.py``
+        gives ``sim_experiment.launch.py``), or None when ``argv`` is not ``ros2 launch``.
+    """
+    words = list(argv)
+    if len(words) < 3 or os.path.basename(words[0]) != 'ros2' or 'launch' not in words[1:]:
+        return None
+    for word in words[words.index('launch', 1) + 1:]:
+        if ':=' in word:
+            return None
+        if not word.startswith('-') and word.endswith(LAUNCH_SUFFIXES):
+            return word
+    return None
+
+
+def undeclared(arguments: Iterable[str], declared: Iterable[str]) -> List[str]:
+    """
+    The names of ``name:=value`` arguments that are not declared.
+
+    Parameters
+    ----------
+    arguments : iterable of str
+        Launch arguments as on the command line.
+    declared : iterable of str
+        The names the file declares.
+
+    Returns
+    -------
+    list of str
+        Undeclared names, in order, each once.
+    """
+    known = set(declared)
+    out: List[str] = []
+    for argument in arguments:
+        if ':=' not in argument:
+            continue
+        name = argument.split(':=', 1)[0]
+        if name not in known and name not in out:
+            out.append(name)
+    return out
+
+
+def _check(context, declared: Sequence[str]) -> list:
+    here = getattr(context.locals, 'current_launch_file_path', None)
+    typed = command_line_launch_file(sys.argv)
+    if here is None or typed is None or os.path.basename(typed) != os.path.basename(here):
+        return []       # included by another file (or not run by ros2 launch): not ours
+    if os.sep in typed and os.path.realpath(typed) != os.path.realpath(here):
+        return []
+    unknown = undeclared(context.argv or [], declared)
+    if unknown:
+        raise RuntimeError(
+            f'{os.path.basename(here)} does not take the argument(s) '
+            f'{", ".join(unknown)} (a misspelt or unsupported argument would be ignored); '
+            f'it takes: {", ".join(sorted(declared))} (ros2 launch emfc_ros '
+            f'{os.path.basename(here)} --show-args)')
+    return []
+
+
+def refuse_undeclared(declared: Sequence[str]) -> OpaqueFunction:
+    """
+    An action that fails the launch on a command-line argument the file does not declare.
+
+    Parameters
+    ----------
+    declared : sequence of str
+        Every argument the file declares.
+
+    Returns
+    -------
+    OpaqueFunction
+        Put it first in the description, so that no node starts.
+    """
+    names = list(declared)
+    return OpaqueFunction(function=_check, args=[names])
+
+
+def declared_names(entities: Iterable[object]) -> List[str]:
+    """
+    Names of the ``DeclareLaunchArgument`` entities of a list.
+
+    Parameters
+    ----------
+    entities : iterable
+        Launch entities.
+
+    Returns
+    -------
+    list of str
+        The argument names.
+    """
+    return [e.name for e in entities if isinstance(e, DeclareLaunchArgument)]
