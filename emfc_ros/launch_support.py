@@ -6,7 +6,8 @@ which ``ros2 launch`` has; nothing else in the package imports this module).
 
 - :func:`common_arguments`: ``namespace`` (default ``emfc``; one experiment graph per
   namespace) and ``discovery_range`` (the nodes' ``ROS_AUTOMATIC_DISCOVERY_RANGE``, default
-  ``LOCALHOST``).
+  ``LOCALHOST``); :func:`gate_arguments` and :func:`generator_gate_parameters`: the start
+  gate and pacing of a generator that feeds a plant simulator or a daq_bridge.
 - :func:`refuse_undeclared`: an action that ends the launch with an error naming an
   argument the file does not declare (``ros2 launch`` itself sets any ``name:=value`` as a
   launch configuration and ignores it silently: ``use_sim_time:=false`` would do nothing).
@@ -24,6 +25,7 @@ from typing import Iterable, List, Optional, Sequence
 
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
+from launch_ros.parameter_descriptions import ParameterValue
 
 #: Values of ROS_AUTOMATIC_DISCOVERY_RANGE (rcl).
 DISCOVERY_RANGES = ['LOCALHOST', 'SUBNET', 'OFF', 'SYSTEM_DEFAULT']
@@ -52,6 +54,73 @@ def common_arguments() -> List[DeclareLaunchArgument]:
                         'adds named computers: README, Two computers); SUBNET multicasts '
                         'it on every network this computer is on'),
     ]
+
+
+#: The generator's start gates (signal_generator parameter ``start_gate``).
+START_GATES = ['applier', 'subscribers', 'none']
+
+
+def gate_arguments(applier: str, starts: str, paced_by: str) -> List[DeclareLaunchArgument]:
+    """
+    The start-gate and pacing arguments of a file whose generator feeds an applier.
+
+    Parameters
+    ----------
+    applier : str
+        What applies the excitation, for the descriptions (``'the plant'``).
+    starts : str
+        What the applier does once its listeners matched (``'subscribes to the excitation'``).
+    paced_by : str
+        What consumer pacing follows (``"the plant's acknowledgements"``).
+
+    Returns
+    -------
+    list of DeclareLaunchArgument
+        ``min_subscribers`` (1), ``excitation_subscribers`` (2), ``start_gate`` (applier),
+        ``pacing`` (consumer) and ``window_blocks`` (8).
+    """
+    return [
+        DeclareLaunchArgument(
+            'min_subscribers', default_value='1',
+            description=f'{applier} {starts} (and is ready) once this many subscriptions to '
+                        'measurements (a recorder) matched [count]; 0: at once'),
+        DeclareLaunchArgument(
+            'excitation_subscribers', default_value='2',
+            description=f'sample 0 also waits for this many subscriptions to the excitation '
+                        f'[count], that of {applier} included: 2 = {applier} and a recorder '
+                        'of the excitation; 1 when nothing records the excitation'),
+        DeclareLaunchArgument(
+            'start_gate', default_value='applier', choices=START_GATES,
+            description=f'what sample 0 waits for: applier = {applier} ready on '
+                        'excitation/ready (and excitation_subscribers); subscribers = the '
+                        'count alone; none = nothing'),
+        DeclareLaunchArgument(
+            'pacing', default_value='consumer', choices=['consumer', 'wall'],
+            description=f"consumer = {paced_by}; wall = this computer's clock"),
+        DeclareLaunchArgument(
+            'window_blocks', default_value='8',
+            description=f'consumer pacing: excitation blocks in flight ahead of {paced_by} '
+                        '[blocks]'),
+    ]
+
+
+def generator_gate_parameters() -> dict:
+    """
+    The generator's parameters from the arguments of :func:`gate_arguments`.
+
+    Returns
+    -------
+    dict
+        ``pacing``, ``start_gate``, ``min_subscribers`` and ``window_blocks``.
+    """
+    return {
+        'pacing': ParameterValue(LaunchConfiguration('pacing'), value_type=str),
+        'start_gate': ParameterValue(LaunchConfiguration('start_gate'), value_type=str),
+        'min_subscribers': ParameterValue(LaunchConfiguration('excitation_subscribers'),
+                                          value_type=int),
+        'window_blocks': ParameterValue(LaunchConfiguration('window_blocks'),
+                                        value_type=int),
+    }
 
 
 def node_environment() -> dict:

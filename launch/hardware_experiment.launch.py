@@ -34,11 +34,9 @@ from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
 
-from emfc_ros.launch_support import (common_arguments, declared_names, node_environment,
+from emfc_ros.launch_support import (common_arguments, declared_names, gate_arguments,
+                                     generator_gate_parameters, node_environment,
                                      refuse_undeclared)
-
-#: The generator's start gates (signal_generator parameter start_gate).
-START_GATES = ['applier', 'subscribers', 'none']
 
 
 def generate_launch_description():
@@ -63,28 +61,8 @@ def generate_launch_description():
                               description='UDP port of the device'),
         DeclareLaunchArgument('block_size', default_value='1000',
                               description='samples per excitation block'),
-        DeclareLaunchArgument('min_subscribers', default_value='1',
-                              description='the device starts (and the bridge is ready) once '
-                                          'this many subscriptions to measurements (a '
-                                          'recorder) matched [count]; 0: at once'),
-        DeclareLaunchArgument('excitation_subscribers', default_value='2',
-                              description='sample 0 also waits for this many subscriptions '
-                                          "to the excitation [count], the bridge's included: "
-                                          '2 = the bridge and a recorder of the excitation; 1 '
-                                          'when nothing records the excitation'),
-        DeclareLaunchArgument('start_gate', default_value='applier', choices=START_GATES,
-                              description='what sample 0 waits for: applier = the bridge '
-                                          'ready on excitation/ready (and '
-                                          'excitation_subscribers); subscribers = the count '
-                                          'alone; none = nothing'),
-        DeclareLaunchArgument('pacing', default_value='consumer', choices=['consumer', 'wall'],
-                              description="consumer = the device's clock, through the "
-                                          "bridge's acknowledgements; wall = this "
-                                          "computer's clock"),
-        DeclareLaunchArgument('window_blocks', default_value='8',
-                              description='consumer pacing: blocks in flight ahead of the '
-                                          'device [blocks]; must hold excitation_lead_s plus '
-                                          'one block'),
+        *gate_arguments('the bridge', 'starts the device', "the device's clock, through the "
+                        "bridge's acknowledgements"),
         DeclareLaunchArgument('lead_blocks', default_value='2',
                               description='wall pacing: blocks sent ahead of the wall clock '
                                           '[blocks]'),
@@ -127,13 +105,7 @@ def generate_launch_description():
             namespace=namespace, output='screen', additional_env=env,
             parameters=[{
                 'experiment_file': LaunchConfiguration('experiment_file'),
-                'pacing': ParameterValue(LaunchConfiguration('pacing'), value_type=str),
-                'start_gate': ParameterValue(LaunchConfiguration('start_gate'),
-                                             value_type=str),
-                'min_subscribers': ParameterValue(
-                    LaunchConfiguration('excitation_subscribers'), value_type=int),
-                'window_blocks': ParameterValue(LaunchConfiguration('window_blocks'),
-                                                value_type=int),
+                **generator_gate_parameters(),
                 'lead_blocks': ParameterValue(LaunchConfiguration('lead_blocks'),
                                               value_type=int),
                 'block_size': ParameterValue(LaunchConfiguration('block_size'),

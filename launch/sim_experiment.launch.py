@@ -35,11 +35,9 @@ from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
 
-from emfc_ros.launch_support import (common_arguments, declared_names, node_environment,
+from emfc_ros.launch_support import (common_arguments, declared_names, gate_arguments,
+                                     generator_gate_parameters, node_environment,
                                      refuse_undeclared)
-
-#: The generator's start gates (signal_generator parameter start_gate).
-START_GATES = ['applier', 'subscribers', 'none']
 
 
 def generate_launch_description():
@@ -64,27 +62,8 @@ def generate_launch_description():
                                           'lever at zero coil current'),
         DeclareLaunchArgument('seed', default_value='0',
                               description='seed of the simulated noise'),
-        DeclareLaunchArgument('min_subscribers', default_value='1',
-                              description='the plant subscribes to the excitation (and is '
-                                          'ready) once this many subscriptions to '
-                                          'measurements (a recorder) matched [count]; 0: at '
-                                          'once'),
-        DeclareLaunchArgument('excitation_subscribers', default_value='2',
-                              description='sample 0 also waits for this many subscriptions '
-                                          "to the excitation [count], the plant's included: "
-                                          '2 = the plant and a recorder of the excitation; 1 '
-                                          'when nothing records the excitation'),
-        DeclareLaunchArgument('start_gate', default_value='applier', choices=START_GATES,
-                              description='what sample 0 waits for: applier = the plant '
-                                          'ready on excitation/ready (and '
-                                          'excitation_subscribers); subscribers = the count '
-                                          'alone; none = nothing'),
-        DeclareLaunchArgument('pacing', default_value='consumer', choices=['consumer', 'wall'],
-                              description='consumer = as fast as the plant acknowledges; '
-                                          "wall = at the wall clock's pace"),
-        DeclareLaunchArgument('window_blocks', default_value='8',
-                              description="excitation blocks in flight ahead of the plant's "
-                                          'acknowledgement [blocks]'),
+        *gate_arguments('the plant', 'subscribes to the excitation',
+                        "the plant's acknowledgements"),
         DeclareLaunchArgument('clock_topic', default_value='/clock',
                               description='topic of the simulated time the plant publishes '
                                           'and the generator follows; clock (relative) puts '
@@ -113,13 +92,7 @@ def generate_launch_description():
             namespace=namespace, output='screen', additional_env=env, remappings=clock,
             parameters=[{
                 'experiment_file': LaunchConfiguration('experiment_file'),
-                'pacing': ParameterValue(LaunchConfiguration('pacing'), value_type=str),
-                'start_gate': ParameterValue(LaunchConfiguration('start_gate'),
-                                             value_type=str),
-                'min_subscribers': ParameterValue(
-                    LaunchConfiguration('excitation_subscribers'), value_type=int),
-                'window_blocks': ParameterValue(LaunchConfiguration('window_blocks'),
-                                                value_type=int),
+                **generator_gate_parameters(),
                 'use_sim_time': True,
             }],
         ),

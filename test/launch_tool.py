@@ -18,7 +18,6 @@ from pathlib import Path
 import signal
 import subprocess
 import sys
-import time
 from typing import Dict, List, Optional, Sequence
 
 import ros_harness
@@ -97,7 +96,7 @@ def as_started(argv: Sequence[str]) -> List[str]:
     raise AssertionError(f'no stand-in for {argv}: the real ros2 command line is not here')
 
 
-class TypedProcess:
+class TypedProcess(ros_harness.NodeProcess):
     """
     A command started as a shell starts it, and interrupted like Ctrl-C in its terminal.
 
@@ -120,25 +119,7 @@ class TypedProcess:
 
     def __init__(self, argv: Sequence[str], log_dir: Path,
                  env: Optional[Dict[str, str]] = None, cwd: Optional[Path] = None) -> None:
-        log_dir.mkdir(parents=True, exist_ok=True)
-        self.argv = list(argv)
-        name = Path(self.argv[0]).name
-        self.stdout_path = log_dir / f'{name}.{time.monotonic_ns()}.out'
-        self._out = open(self.stdout_path, 'wb')
-        self.proc = subprocess.Popen(self.argv, stdout=self._out, stderr=subprocess.STDOUT,
-                                     env=ros_harness.child_environment(env), cwd=cwd,
-                                     start_new_session=True)
-        self.pid = self.proc.pid
-
-    def output(self) -> str:
-        """What the job printed so far."""
-        if not self._out.closed:
-            self._out.flush()
-        return self.stdout_path.read_text(errors='replace')
-
-    def alive(self) -> bool:
-        """Whether the job's first process still runs."""
-        return self.proc.poll() is None
+        super().__init__(argv, log_dir, env=env, cwd=cwd, new_session=True)
 
     def wait(self, timeout_s: float) -> Optional[int]:
         """
@@ -173,7 +154,7 @@ class TypedProcess:
         int
             The exit code of the job's first process.
         """
-        if self._out.closed:                            # stopped before
+        if self.stdout.closed:                          # stopped before
             return self.proc.returncode
         if self.proc.poll() is None:
             _signal_group(self.pid, signal.SIGINT)
@@ -185,7 +166,7 @@ class TypedProcess:
             # ended by itself: end what it may have left in its group (still ours: the
             # group's id stays taken while any member lives)
             _signal_group(self.pid, signal.SIGKILL)
-        self._out.close()
+        self.stdout.close()
         return self.proc.returncode
 
 

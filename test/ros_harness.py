@@ -166,17 +166,21 @@ class NodeProcess:
         Extra environment variables.
     cwd : pathlib.Path, optional
         Working directory.
+    new_session : bool
+        Start it in a process group of its own (a terminal's job).
     """
 
     def __init__(self, argv: Sequence[str], log_dir: Path,
-                 env: Optional[Dict[str, str]] = None, cwd: Optional[Path] = None) -> None:
+                 env: Optional[Dict[str, str]] = None, cwd: Optional[Path] = None,
+                 new_session: bool = False) -> None:
         log_dir.mkdir(parents=True, exist_ok=True)
         name = Path(argv[0]).name
         self.stdout_path = log_dir / f'{name}.{time.monotonic_ns()}.out'
         self.stdout = open(self.stdout_path, 'wb')
         self.argv = list(argv)
         self.proc = subprocess.Popen(self.argv, stdout=self.stdout, stderr=subprocess.STDOUT,
-                                     env=child_environment(env), cwd=cwd)
+                                     env=child_environment(env), cwd=cwd,
+                                     start_new_session=new_session)
         self.pid = self.proc.pid
         self.killed = False
 

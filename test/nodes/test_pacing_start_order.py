@@ -93,9 +93,16 @@ def node_argv(name, params):
 
 
 def launch_argument_defaults():
-    """The default of every ``DeclareLaunchArgument`` of ``sim_experiment.launch.py``."""
+    """
+    The default of every ``DeclareLaunchArgument`` of ``sim_experiment.launch.py``.
+
+    Those of the arguments it shares with the hardware launch are in
+    ``emfc_ros/launch_support.py`` (``gate_arguments``).
+    """
     out = {}
-    for node in ast.walk(ast.parse(LAUNCH_FILE.read_text())):
+    sources = '\n'.join(p.read_text() for p in (LAUNCH_FILE,
+                                               REPO / 'emfc_ros' / 'launch_support.py'))
+    for node in ast.walk(ast.parse(sources)):
         if isinstance(node, ast.Call) and getattr(node.func, 'id', None) == \
                 'DeclareLaunchArgument':
             kwargs = {kw.arg: kw.value for kw in node.keywords}
