@@ -100,8 +100,8 @@ def launch_argument_defaults():
     ``emfc_ros/launch_support.py`` (``gate_arguments``).
     """
     out = {}
-    sources = '\n'.join(p.read_text() for p in (LAUNCH_FILE,
-                                               REPO / 'emfc_ros' / 'launch_support.py'))
+    files = (LAUNCH_FILE, REPO / 'emfc_ros' / 'launch_support.py')
+    sources = '\n'.join(p.read_text() for p in files)
     for node in ast.walk(ast.parse(sources)):
         if isinstance(node, ast.Call) and getattr(node.func, 'id', None) == \
                 'DeclareLaunchArgument':
