@@ -117,10 +117,10 @@ def main(argv: Optional[List[str]] = None) -> int:
                                         on_step=step_done if pool is not None else None,
                                         executor=pool.tasks if pool is not None else None)
         except (PlantConfigurationError, BagFormatError) as exc:
-            print(f'emfc-identify: {exc}', file=sys.stderr)
+            _failure_report(out, exc, bag)
             return 2
         except (ValueError, OSError, KeyError) as exc:
-            print(f'emfc-identify: {exc}', file=sys.stderr)
+            _failure_report(out, exc, bag)
             return 1
         try:
             write_report(result, out, pool=pool)
@@ -138,6 +138,18 @@ def main(argv: Optional[List[str]] = None) -> int:
               file=sys.stderr)
         return 1
     return 0
+
+
+def _failure_report(out: Path, exc: BaseException, bag: Path) -> None:
+    """Say why nothing was identified, on stderr and in the report folder."""
+    from emfc_ros.core.report.writer import write_failure_report
+    reason = str(exc) if not isinstance(exc, KeyError) else f'missing {exc}'
+    print(f'emfc-identify: {reason}', file=sys.stderr)
+    try:
+        summary = write_failure_report(out, reason, str(bag))
+        print(f'emfc-identify: the reason is in {summary}', file=sys.stderr)
+    except OSError as err:
+        print(f'emfc-identify: cannot write the report to {out}: {err}', file=sys.stderr)
 
 
 if __name__ == '__main__':

@@ -79,7 +79,8 @@ PARAMETERS = {
                           '0: no size split'),
     'max_bag_duration_s': (0.0, 'split the bag into a new MCAP file after this much '
                                 'recorded time [s]; 0: no duration split'),
-    'discovery_period_s': (0.5, 'period of the topic (and node) discovery [s], 0.01 to 60'),
+    'discovery_period_s': (0.1, 'period of the topic (and node) discovery [s], 0.01 to 60 '
+                                '(ros2 bag record polls every 0.1 s too)'),
     'flush_period_s': (1.0, 'data reach the disk at least this often [s], 0.01 to 60: a '
                             'killed recorder loses at most about this much'),
     'autostart': (True, 'start recording when the node comes up'),

@@ -88,6 +88,15 @@ def test_the_excitation_description_alone_is_enough(record, tmp_path):
     with pytest.raises(IdentificationError,
                        match='/emfc/excitation/description was not recorded'):
         experiment_sections(bare, read_streams(bare), '/emfc')
+    # emfc-identify on it: exit 1, and the report says why (every exit writes one).
+    done = identify(bare, tmp_path / 'out')
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert 'was not recorded' in done.stderr
+    summary = (tmp_path / 'out' / 'summary.md').read_text()
+    assert '**Identification FAILED**: /emfc/excitation/description was not recorded' in summary
+    results = yaml.safe_load((tmp_path / 'out' / 'results.yaml').read_text())
+    assert results['status']['success'] is False and 'was not recorded' in \
+        results['status']['failures'][0]
 
 
 @pytest.mark.slow

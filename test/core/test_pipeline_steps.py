@@ -81,10 +81,10 @@ def test_find_plateaus():
     np.testing.assert_array_equal(find_plateaus(x, 1000.0, 0.01, 0.05), [(10, 100), (160, 450)])
 
 
-def staircase_recording():
+def staircase_recording(count=9):
     params = BalanceParameters()
     fs = 1000.0
-    levels = np.linspace(-8.0, 8.0, 9)
+    levels = np.linspace(-8.0, 8.0, count)
     u = np.repeat(levels, 200)
     i_c = params.coil_amplifier.current_A(u) + 1e-6 * np.random.default_rng(0).standard_normal(
         u.size)
@@ -111,6 +111,22 @@ def test_static_fits_recover_table_1():
     d = res.to_dict()['static_characteristics']
     assert d['coil_amplifier']['coefficients_ascending'][1]['unit'] == 'A/V'
     assert 'U^2' in d['coil_amplifier']['formula']
+
+
+@pytest.mark.parametrize('count', [1, 2, 3, 4])
+def test_a_short_staircase_is_a_warning_not_a_crash(count):
+    """Three levels for a quadratic amplifier curve crashed the static step (issue 28)."""
+    params, rec, sections = staircase_recording(count)
+    res = identify(rec, sections, {'frf': {'enabled': False}, 'greybox': {'enabled': False}})
+    assert res.failures == []
+    degree = len(params.coil_amplifier.coeffs_A_per_V_pow) - 1
+    fitted = 'coil_amplifier' in res.static.fits
+    assert fitted == (count >= degree + 2), (count, degree)
+    if not fitted:
+        assert any(f'static: coil_amplifier: {count} distinct setpoint levels for a '
+                   f'degree-{degree} curve' in w and f'at least {degree + 2} needed' in w
+                   for w in res.warnings), res.warnings
+    res.to_dict()                                   # the report can be written
 
 
 def test_missing_channel_and_bad_sections():

@@ -350,27 +350,41 @@ def identify(recording: Any, experiment_sections: Sequence[Any],
     if cfg.frf.enabled:
         start = time.perf_counter()
         report('frf', 0.0, 'frequency responses')
-        _frf_step(result, channels, forces, by_name, report)
+        _guarded(result, 'frf', _frf_step, result, channels, forces, by_name, report)
         result.timings_s['frf'] = time.perf_counter() - start
         report('frf', 1.0, f'{len(result.frfs)} frequency responses')
         done('frf', result)
     if cfg.tf_fit.enabled and result.frfs:
         start = time.perf_counter()
-        _tf_step(result, report)
+        _guarded(result, 'tf_fit', _tf_step, result, report)
         result.timings_s['tf_fit'] = time.perf_counter() - start
         done('tf_fit', result)
     if cfg.static.enabled:
         start = time.perf_counter()
-        _static_step(result, channels, forces, spans)
+        _guarded(result, 'static', _static_step, result, channels, forces, spans)
         result.timings_s['static'] = time.perf_counter() - start
         done('static', result)
     if cfg.greybox.enabled:
         start = time.perf_counter()
-        _greybox_step(result, channels, spans, report, on_step, executor)
+        _guarded(result, 'greybox', _greybox_step, result, channels, spans, report, on_step,
+                 executor)
         result.timings_s['greybox'] = time.perf_counter() - start
         done('greybox', result)
     report('done', 1.0, f'identification finished with {len(result.warnings)} warning(s)')
     return result
+
+
+def _guarded(result: IdentificationResult, step: str, run: Callable, *args: Any) -> None:
+    """
+    Run a step; an identification error it raises is that step's failure, not a crash.
+
+    The result then carries the reason in ``failures`` (its report is written, its status
+    is failed) and the next steps still run.
+    """
+    try:
+        run(*args)
+    except (IdentificationError, np.linalg.LinAlgError) as exc:
+        result.failures.append(f'{step}: {exc}')
 
 
 # ---------------------------------------------------------------- inputs
@@ -673,7 +687,15 @@ def _static_step(result: IdentificationResult, channels: Mapping[str, np.ndarray
                                       cfg.min_plateau_s):
                 xm.append(channels[x_name][sl][a:b].mean())
                 ym.append(channels[y_name][sl][a:b].mean())
-        if len(set(np.round(xm, 12))) <= degree:
+        levels = len(set(np.round(xm, 12)))
+        if levels <= degree + 1:
+            # A curve of degree d has d + 1 coefficients; with no more plateaus than that the
+            # fit has no residual to say how good it is (and the least squares refuses).
+            if levels:
+                result.warnings.append(
+                    f'static: {key}: {levels} distinct setpoint levels for a degree-{degree} '
+                    f'curve ({degree + 1} coefficients): at least {degree + 2} needed; not '
+                    'fitted (the configured characteristic is used)')
             continue
         with warnings.catch_warnings():
             warnings.simplefilter('ignore')
@@ -691,7 +713,7 @@ def _static_step(result: IdentificationResult, channels: Mapping[str, np.ndarray
                                           cfg.min_plateau_s):
                     im.append(channels[y_name][sl][a:b].mean())
                     fm.append(pan_force[sl][a:b].mean())
-            if len(set(np.round(im, 12))) > cfg.load_changer_degree:
+            if len(set(np.round(im, 12))) > cfg.load_changer_degree + 1:
                 with warnings.catch_warnings():
                     warnings.simplefilter('ignore')
                     fit = fit_polynomial(np.array(im), np.array(fm), cfg.load_changer_degree,

@@ -85,3 +85,38 @@ def write_report(result: Any, out_dir: Union[str, Path], plots: bool = True,
                        encoding='utf-8')
     written['summary'].append(summary)
     return written
+
+
+def write_failure_report(out_dir: Union[str, Path], reason: str, source: str) -> Path:
+    """
+    The report of an identification that could not run: the reason, in the usual files.
+
+    ``results.yaml`` has ``status: {success: false, failures: [reason]}`` and the source,
+    ``summary.md`` the headline ``Identification FAILED``, so that every exit of
+    ``emfc-identify`` leaves a report that says what happened.
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        Folder (created if needed).
+    reason : str
+        Why nothing was identified.
+    source : str
+        What was to be identified (the bag).
+
+    Returns
+    -------
+    pathlib.Path
+        The summary written.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / 'results.yaml', 'w', encoding='utf-8') as stream:
+        yaml.dump({'status': {'success': False, 'failures': [reason]}, 'source': source},
+                  stream, Dumper=_DUMPER, sort_keys=False, width=100)
+    summary = out / 'summary.md'
+    summary.write_text('# Identification of the EMFC balance\n\n'
+                       f'**Identification FAILED**: {reason}\n\n'
+                       f'Recording: `{source}`. Nothing was identified; `results.yaml` has '
+                       'the same reason.\n', encoding='utf-8')
+    return summary
