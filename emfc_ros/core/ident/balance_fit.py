@@ -58,7 +58,8 @@ from emfc_ros.core.ident.greybox import (fit_greybox, ParameterSpec, prewhitened
 from emfc_ros.core.ident.identifiability import (analyse_covariance, choose_free,
                                                  FreeSetChoice, MAX_RELATIVE_UNCERTAINTY,
                                                  relative_jacobian_columns)
-from emfc_ros.core.ident.metrics import input_correlation_test, whiteness_test
+from emfc_ros.core.ident.initial_state import correct_record
+from emfc_ros.core.ident.metrics import fit_percent, input_correlation_test, whiteness_test
 from emfc_ros.core.ident.noise_model import whitening_weights
 from emfc_ros.core.ident.pattern_search import PatternSearchOptions
 from emfc_ros.core.model.linear import linearise
@@ -877,7 +878,8 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
     balance = with_values(setting.balance, {k: v for k, v in start.items() if k not in free},
                           setting.load_mass_kg, setting.load_changer_coupled)
     model = BalanceGreyboxModel(balance, setting.sample_rate_Hz, setpoints,
-                                setting.load_mass_kg, setting.load_changer_coupled)
+                                setting.load_mass_kg, setting.load_changer_coupled,
+                                initial_setpoints_V=gcfg.initial_setpoints_V)
     data = model.sections(channels['position_m'], sections)
     if resolved_backend(model.backend) != 'numba':
         # the interpreted simulator: say up front how long this takes
@@ -945,7 +947,13 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
                                gcfg, band_Hz, hold, report, on_fit, on_model=on_model)
         verdict.failures[probe_at:probe_at] = failures
     fitted, lin = linearised(fit.parameters)
-    record = model.simulate_record(fit.parameters)
+    # The record's initial state estimated (a balance not at rest under the first setpoints
+    # rings in the data, not in the simulation): the fit percentages and the figures are of
+    # the simulation with it (initial_state.py; the parameters were not affected).
+    record, start_state = correct_record(
+        lin.A, lin.C[0], setting.sample_rate_Hz, channels['position_m'],
+        model.simulate_record(fit.parameters), [(first, n) for _, first, n in sections])
+    fit = with_section_fits(fit, sections, channels['position_m'], record)
     signals = FittedSignals(fit, lin, *section_signals(channels, sections, record,
                                                        setting.sample_rate_Hz))
     if on_fit is not None:
@@ -983,11 +991,44 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
     parameters = {n: float(getattr(fitted.mechanics, n))
                   for n in fitted.mechanics.__dataclass_fields__}
     out = BalanceGreyboxResult(fit, {s.name: s.initial for s in specs}, lin, parameters,
-                               derived, fd, choice, sources, time_domain)
+                               derived, fd, choice, sources, time_domain,
+                               initial_state=start_state)
     out.time_s.update(signals.time_s)
     out.measured_m.update(signals.measured_m)
     out.simulated_m.update(signals.simulated_m)
     return out, verdict
+
+
+def with_section_fits(fit: Any, sections: Sequence[Tuple[str, int, int]],
+                      position_m: np.ndarray, record: np.ndarray) -> Any:
+    """
+    The fit with each section's fit percentage and rms error from a simulated record.
+
+    Parameters
+    ----------
+    fit : GreyboxResult
+        The time-domain fit.
+    sections : sequence of (name, first_sample_index, n_samples)
+        The fitted sections.
+    position_m, record : ndarray
+        Measured and simulated lever-end position over the record [m].
+
+    Returns
+    -------
+    GreyboxResult
+        A copy with ``sections`` replaced (whiteness fields kept).
+    """
+    spans = {name: slice(first, first + n) for name, first, n in sections}
+    fits = []
+    for sec in fit.sections:
+        sl = spans.get(sec.name)
+        if sl is None:
+            fits.append(sec)
+            continue
+        y, yh = np.asarray(position_m[sl])[:, None], np.asarray(record[sl])[:, None]
+        fits.append(dataclasses.replace(sec, fit_percent=np.atleast_1d(fit_percent(y, yh)),
+                                        rms_error=np.sqrt(np.mean((y - yh) ** 2, axis=0))))
+    return dataclasses.replace(fit, sections=tuple(fits))
 
 
 @dataclasses.dataclass

@@ -9,9 +9,10 @@ sensor's range clipping. Setpoints rather than measured currents are the inputs 
 carry no measurement noise (the current monitors add ADC quantisation, an errors-in-variables
 problem); the characteristics come from the configuration (or the static fits).
 
-The whole record is simulated once per parameter set, starting at rest under the first
-setpoints, and each section's simulate call returns its slice: the sections then start from the
-state the previous sections left, as in the experiment. Sections are recognised because their
+The whole record is simulated once per parameter set, starting at rest under the setpoints the
+balance rested under before the record (``initial_setpoints_V``, default 0 V; the first
+setpoints act from sample 0), and each section's simulate call returns its slice: the sections
+then start from the state the previous sections left, as in the experiment. Sections are recognised because their
 input arrays are views into the recorded setpoints (as :meth:`BalanceGreyboxModel.sections`
 builds them); any other input array is simulated on its own, from rest.
 
@@ -47,7 +48,7 @@ MASS_COORDINATES = ('J1c_kgm2', 'm3_kg', 'J2c_kgm2')
 _COORDINATE_STEPS = (1.0e-6, 1.0e-3, 1.0e-7)
 
 #: Pseudo-parameter of the time-domain fit standing for ``F_off_N``: the lever-end rest
-#: position under the first setpoints [m]. The offset force that gives it is solved from the
+#: position under the initial setpoints (before the record's first sample) [m]. The offset force that gives it is solved from the
 #: static equilibrium for every parameter set, so that changing a mass (and with it the weight
 #: moments) does not move the simulated lever out of the sensor range.
 REST_POSITION = 'rest_position_m'
@@ -278,10 +279,18 @@ class BalanceGreyboxModel:
 
     def __init__(self, params: BalanceParameters, sample_rate_Hz: float,
                  setpoints_V: np.ndarray, load_mass_kg: float,
-                 load_changer_coupled: bool, hold: str = 'zoh', backend: str = 'auto') -> None:
+                 load_changer_coupled: bool, hold: str = 'zoh', backend: str = 'auto',
+                 initial_setpoints_V: Optional[Sequence[float]] = None) -> None:
         u = np.ascontiguousarray(setpoints_V, dtype=float)
         if u.ndim != 2 or u.shape[1] != 2 or u.shape[0] < 2:
             raise ValueError(f'setpoints_V must have shape (n >= 2, 2), got {u.shape}')
+        start = u[0] if initial_setpoints_V is None else np.asarray(initial_setpoints_V,
+                                                                     dtype=float)
+        if start.shape != (2,) or not np.all(np.isfinite(start)):
+            raise ValueError(f'initial_setpoints_V must be 2 finite voltages, got '
+                             f'{initial_setpoints_V!r}')
+        #: Setpoints the balance rests under before sample 0 [V] (the record's start).
+        self.initial_setpoints_V = np.array(start, dtype=float)
         self.params = params
         self.sample_rate_Hz = float(sample_rate_Hz)
         self.setpoints_V = u
@@ -331,22 +340,22 @@ class BalanceGreyboxModel:
         params : BalanceParameters
             :meth:`balance`'s result.
         x0 : ndarray, shape (4,)
-            :func:`rest_state` of it under the first recorded setpoints (from the same
-            equilibrium solve when ``values`` give the rest position).
+            :func:`rest_state` of it under the initial setpoints (from the same equilibrium
+            solve when ``values`` give the rest position).
         """
         params = with_values(self.params, values, self.load_mass_kg, self.load_changer_coupled)
         if REST_POSITION in values:
-            force, x0 = _offset_and_rest(params, self.setpoints_V[0], self.load_mass_kg,
+            force, x0 = _offset_and_rest(params, self.initial_setpoints_V, self.load_mass_kg,
                                          self.load_changer_coupled,
                                          float(values[REST_POSITION]))
             return params.with_mechanics(F_off_N=force), x0
-        return params, rest_state(params, self.setpoints_V[0], self.load_mass_kg,
+        return params, rest_state(params, self.initial_setpoints_V, self.load_mass_kg,
                                   self.load_changer_coupled)
 
     def simulate_setpoints(self, values: Mapping[str, float], setpoints_V: np.ndarray,
                            ) -> np.ndarray:
         """
-        Simulate the position for setpoints, starting at rest under the first ones.
+        Simulate the position for setpoints, from rest (the record: under the initial ones).
 
         Parameters
         ----------
@@ -363,14 +372,16 @@ class BalanceGreyboxModel:
         u = np.asarray(setpoints_V, dtype=float)
         if u is self.setpoints_V:
             params, x0 = self.start(values)
+            before = self.initial_setpoints_V
         else:
             params = self.balance(values)
             x0 = rest_state(params, u[0], self.load_mass_kg, self.load_changer_coupled)
+            before = u[0]
         sim = Simulator(params, self.sample_rate_Hz, 0, hold=self.hold, noise=False,
                         quantisation=False, reference_channels=False,
                         load_mass_kg=self.load_mass_kg,
                         load_changer_coupled=self.load_changer_coupled, x0=x0,
-                        initial_setpoints_V=u[0], backend=self.backend)
+                        initial_setpoints_V=before, backend=self.backend)
         rows = self._u_rows if u is self.setpoints_V else np.ascontiguousarray(u.T)
         out = sim.step_block(rows)
         return out[sim.channel_names.index(_POSITION)]
@@ -487,7 +498,8 @@ class BalanceGreyboxModel:
             if self._sensitivity is None:
                 self._sensitivity = LinearSensitivity(
                     self.setpoints_V, self.sample_rate_Hz, self.load_mass_kg,
-                    self.load_changer_coupled, min_substeps(params, self.sample_rate_Hz))
+                    self.load_changer_coupled, min_substeps(params, self.sample_rate_Hz),
+                    initial_setpoints_V=self.initial_setpoints_V)
             cached = self._sensitivity.derivatives(
                 params, x0, names, values,
                 lambda v: with_values(self.params, v, self.load_mass_kg,

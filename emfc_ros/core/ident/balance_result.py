@@ -84,6 +84,10 @@ class BalanceGreyboxResult:
     inputs_V : dict of str to ndarray
         Per section: the model's inputs, shape ``(n, 2)``: coil and load-changer setpoints
         [V] (for the residual-input correlation).
+    initial_state : InitialState or None
+        The record's estimated initial-state deviation from rest under the first setpoints
+        (:mod:`~emfc_ros.core.ident.initial_state`); the simulated positions include its
+        free response.
     """
 
     fit: GreyboxResult
@@ -99,6 +103,7 @@ class BalanceGreyboxResult:
     measured_m: Dict[str, np.ndarray] = field(default_factory=dict)
     simulated_m: Dict[str, np.ndarray] = field(default_factory=dict)
     inputs_V: Dict[str, np.ndarray] = field(default_factory=dict)
+    initial_state: Optional[Any] = None
 
 
 @dataclass
@@ -351,5 +356,13 @@ def greybox_dict(g: Optional[BalanceGreyboxResult]) -> Optional[dict]:
             'fixed': dict(choice.fixed)},
         'time_domain_identifiability': (None if g.time_domain_identifiability is None
                                         else g.time_domain_identifiability.to_dict()),
+        'initial_state': None if g.initial_state is None else {
+            'position_m': g.initial_state.position_m,
+            'deviation': [float(v) for v in g.initial_state.deviation],
+            'deviation_units': ['rad', 'rad', 'rad/s', 'rad/s'][:len(g.initial_state.deviation)],
+            'rms_error_without_m': g.initial_state.rms_before_m,
+            'rms_error_with_m': g.initial_state.rms_after_m,
+            'note': "estimated deviation of the record's initial state from rest under the "
+                    'first setpoints; the simulated positions include its free response'},
     }
     return out

@@ -8,7 +8,7 @@ beams' angles stay below 1e-3 rad). The Jacobian of the fit, a finite difference
 simulations per parameter (16 simulations for 8 parameters), is therefore taken from the
 linearised model instead, at the cost of about two simulations:
 
-* the linear model about the rest under the first setpoints (``x' = A x + B dF``, ``y = y0 +
+* the linear model about the rest under the initial setpoints (``x' = A x + B dF``, ``y = y0 +
   C x``, :func:`~emfc_ros.core.model.linear.jacobians`, with the coil force's dependence on the
   position, ``dF_c = k'(y0) I_c0 dy``, in ``A``), discretised as the simulator integrates it:
   one RK4 step per substep with the force held over the sample (``Phi = I + hA + (hA)^2/2 +
@@ -96,11 +96,17 @@ class LinearSensitivity:
         Whether the load changer's moving mass rides on the pan.
     substeps : int
         RK4 steps per sample of the simulation.
+    initial_setpoints_V : (float, float), optional
+        The setpoints the balance rested under before sample 0 (the linearisation's rest and
+        the inputs' reference); default the first setpoints.
     """
 
     def __init__(self, setpoints_V: np.ndarray, sample_rate_Hz: float, load_mass_kg: float,
-                 load_changer_coupled: bool, substeps: int = 1) -> None:
+                 load_changer_coupled: bool, substeps: int = 1,
+                 initial_setpoints_V: Optional[Sequence[float]] = None) -> None:
         self.setpoints_V = np.asarray(setpoints_V, dtype=float)
+        self.initial_setpoints_V = (self.setpoints_V[0] if initial_setpoints_V is None
+                                    else np.asarray(initial_setpoints_V, dtype=float))
         self.sample_rate_Hz = float(sample_rate_Hz)
         self.load_mass_kg = float(load_mass_kg)
         self.load_changer_coupled = bool(load_changer_coupled)
@@ -108,20 +114,27 @@ class LinearSensitivity:
         self._inputs_key: Optional[tuple] = None
         self._currents: Optional[Tuple[np.ndarray, np.ndarray]] = None
 
-    def _input_currents(self, params: BalanceParameters) -> Tuple[np.ndarray, np.ndarray]:
-        """Coil current [A] and pan force [N] per sample (fixed characteristics: cached)."""
+    def _input_currents(self, params: BalanceParameters
+                        ) -> Tuple[np.ndarray, np.ndarray, float, float]:
+        """
+        Coil current [A] and pan force [N] per sample, and under the initial setpoints.
+
+        Fixed characteristics: cached.
+        """
         conv = params.converters
         key = (params.coil_amplifier, params.load_changer_amplifier, params.load_changer,
                conv.dac_range_V, conv.coil_current_limit_A, conv.load_changer_current_limit_A)
         if key != self._inputs_key:
-            u = np.clip(self.setpoints_V, -conv.dac_range_V, conv.dac_range_V)
+            u = np.clip(np.vstack((self.initial_setpoints_V[None, :], self.setpoints_V)),
+                        -conv.dac_range_V, conv.dac_range_V)
             i_coil = np.clip(params.coil_amplifier.current_A(u[:, 0]),
                              -conv.coil_current_limit_A, conv.coil_current_limit_A)
             i_lc = np.clip(params.load_changer_amplifier.current_A(u[:, 1]),
                            -conv.load_changer_current_limit_A,
                            conv.load_changer_current_limit_A)
-            self._currents = (np.asarray(i_coil, dtype=float),
-                              np.asarray(params.load_changer.force_N(i_lc), dtype=float))
+            i_coil = np.asarray(i_coil, dtype=float)
+            f_pan = np.asarray(params.load_changer.force_N(i_lc), dtype=float)
+            self._currents = (i_coil[1:], f_pan[1:], float(i_coil[0]), float(f_pan[0]))
             self._inputs_key = key
         return self._currents
 
@@ -147,7 +160,7 @@ class LinearSensitivity:
             Residues ``(C v_i)(w_i Gamma_j)`` [m/N per sample], coil force scaled by ``k(y0)``
             so that the input is the coil current deviation [A].
         """
-        i_coil, f_pan = self._input_currents(params)
+        _, _, i_ref, f_ref = self._input_currents(params)
         mech = loaded(mechanics, self.load_mass_kg, self.load_changer_coupled)
         y0 = float(mech.l2_m * np.sin(x0[0]) + mech.l3_m * np.sin(x0[1]))
         k0 = float(params.motor.coefficient_N_per_A(y0))
@@ -155,9 +168,9 @@ class LinearSensitivity:
         slope = float(params.motor.coefficient_N_per_A(y0 + dk)
                       - params.motor.coefficient_N_per_A(y0 - dk)) / (2.0 * dk)
         a, b, c, _ = jacobians(mech, np.asarray(x0, dtype=float),
-                               np.array([k0 * i_coil[0], f_pan[0]]))
+                               np.array([k0 * i_ref, f_ref]))
         # the coil force follows the position at every RK4 stage: F_c = k(y) I_c
-        a = a + np.outer(b[:, 0], slope * i_coil[0] * c[0])
+        a = a + np.outer(b[:, 0], slope * i_ref * c[0])
         phi, gamma = rk4_map(a, b, 1.0 / self.sample_rate_Hz, self.substeps)
         lam, v = np.linalg.eig(phi)
         w = np.linalg.inv(v)
@@ -177,7 +190,7 @@ class LinearSensitivity:
         params : BalanceParameters
             The balance at ``values``.
         x0 : ndarray, shape (4,)
-            Its rest state under the first setpoints.
+            Its rest state under the initial setpoints.
         names : sequence of str
             Parameters to differentiate by: names ``with_values`` understands (mechanical
             parameters, mass-matrix entries) and ``rest_name``.
@@ -194,9 +207,9 @@ class LinearSensitivity:
         ndarray, shape (n, len(names))
             ``dy / dtheta`` [m per unit of each parameter].
         """
-        i_coil, f_pan = self._input_currents(params)
+        i_coil, f_pan, i_ref, f_ref = self._input_currents(params)
         n = i_coil.size
-        drive = np.column_stack((i_coil - i_coil[0], f_pan - f_pan[0]))
+        drive = np.column_stack((i_coil - i_ref, f_pan - f_ref))
         lam, res = self.modal(params, x0, params.mechanics)
         # one of each conjugate pair, doubled; real modes once
         keep = [i for i in range(lam.size) if lam[i].imag >= -1e-15 * abs(lam[i])]

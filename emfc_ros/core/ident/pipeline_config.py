@@ -161,6 +161,11 @@ class GreyboxConfig:
         value; 1 mN for ``F_off_N``). MATLAB's default 1 (steps of 100 %) jumps between the
         local minima of the simulation error of a lightly damped resonance; 0.0625 (6 %)
         stays in the basin found from the FRF.
+    initial_setpoints_V : (float, float) or None
+        Coil and load-changer setpoints the balance rested under before the record's first
+        sample [V] (default 0 V: the outputs of an idle bridge, generator or simulated
+        balance); the simulation starts at rest there and applies the first setpoints at
+        sample 0. None: at rest under the first setpoints (before issue 28).
     """
 
     enabled: bool = True
@@ -175,6 +180,7 @@ class GreyboxConfig:
     noise_weighting: bool = True
     mass_relative_uncertainty: float = 0.05
     pattern_search_initial_mesh_size: float = 0.0625
+    initial_setpoints_V: Optional[Tuple[float, float]] = (0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -353,6 +359,15 @@ def _greybox(cfg: Mapping[str, Any], path: str) -> GreyboxConfig:
     initial_cfg = get_mapping(cfg, 'initial', path, default={})
     reject_unknown(initial_cfg, names, join(path, 'initial'))
     initial = {k: get_float(initial_cfg, k, join(path, 'initial')) for k in initial_cfg}
+    start: Optional[Tuple[float, float]] = d.initial_setpoints_V
+    if 'initial_setpoints_V' in cfg and cfg['initial_setpoints_V'] is None:
+        start = None
+    elif 'initial_setpoints_V' in cfg:
+        pair = get_float_list(cfg, 'initial_setpoints_V', path, min_length=2)
+        if len(pair) != 2:
+            raise ConfigError(join(path, 'initial_setpoints_V'),
+                              f'need [coil_V, load_changer_V] or null, got {pair}')
+        start = (float(pair[0]), float(pair[1]))
     return GreyboxConfig(
         enabled=get_bool(cfg, 'enabled', path, default=d.enabled),
         method=get_str(cfg, 'method', path, default=d.method, choices=GREYBOX_METHODS),
@@ -374,4 +389,5 @@ def _greybox(cfg: Mapping[str, Any], path: str) -> GreyboxConfig:
         pattern_search_initial_mesh_size=get_float(
             cfg, 'pattern_search_initial_mesh_size', path,
             default=d.pattern_search_initial_mesh_size, minimum=0.0, maximum=100.0,
-            min_exclusive=True))
+            min_exclusive=True),
+        initial_setpoints_V=start)
