@@ -144,12 +144,13 @@ def _failure_report(out: Path, exc: BaseException, bag: Path) -> None:
     """Say why nothing was identified, on stderr and in the report folder."""
     from emfc_ros.core.report.writer import write_failure_report
     reason = str(exc) if not isinstance(exc, KeyError) else f'missing {exc}'
-    print(f'emfc-identify: {reason}', file=sys.stderr)
     try:
         summary = write_failure_report(out, reason, str(bag))
-        print(f'emfc-identify: the reason is in {summary}', file=sys.stderr)
     except OSError as err:
         print(f'emfc-identify: cannot write the report to {out}: {err}', file=sys.stderr)
+        print(f'emfc-identify: {reason}', file=sys.stderr)
+        return
+    print(f'emfc-identify: {reason} (this reason is also in {summary})', file=sys.stderr)
 
 
 if __name__ == '__main__':

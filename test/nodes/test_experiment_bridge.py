@@ -195,7 +195,8 @@ def test_bridge_run_on_the_emulator_matches_the_simulator_target(tmp_path):
     assert abs(gains[0] / gains[1] - 1.0) < 1e-3, gains
 
     # A hardware bag that does not say what was on the pan (the runner's plant configuration
-    # and the node parameters removed): emfc-identify stops, naming the option, writes nothing
+    # and the node parameters removed): emfc-identify stops, naming the option, and its report
+    # says so
     blind = tmp_path / 'blind'
     shutil.copytree(out / 'bag', blind)
     meta = yaml.safe_load((blind / 'metadata.yaml').read_text())
@@ -214,7 +215,12 @@ def test_bridge_run_on_the_emulator_matches_the_simulator_target(tmp_path):
                              env=ros_harness.child_environment(), cwd=tmp_path)
     assert refused.returncode == 2, refused.stdout[-2000:] + refused.stderr[-2000:]
     assert '--load-mass-kg' in refused.stderr and 'load_mass_kg' in refused.stderr
-    assert not (tmp_path / 'x').exists()
+    # Every exit writes its report (issue 28 item 5): the reason, no identified numbers.
+    failed = yaml.safe_load((tmp_path / 'x' / 'results.yaml').read_text())
+    assert failed['status']['success'] is False
+    assert 'load_mass_kg' in failed['status']['failures'][0]
+    assert 'greybox' not in failed and 'Identification FAILED' in (
+        tmp_path / 'x' / 'summary.md').read_text()
     told = subprocess.run([identify, str(blind), '-o', str(tmp_path / 'told'),
                            '--load-mass-kg', repr(results['configuration']['load_mass_kg']),
                            '--load-changer-coupled', 'true'],

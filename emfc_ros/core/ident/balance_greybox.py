@@ -12,9 +12,10 @@ problem); the characteristics come from the configuration (or the static fits).
 The whole record is simulated once per parameter set, starting at rest under the setpoints the
 balance rested under before the record (``initial_setpoints_V``, default 0 V; the first
 setpoints act from sample 0), and each section's simulate call returns its slice: the sections
-then start from the state the previous sections left, as in the experiment. Sections are recognised because their
-input arrays are views into the recorded setpoints (as :meth:`BalanceGreyboxModel.sections`
-builds them); any other input array is simulated on its own, from rest.
+then start from the state the previous sections left, as in the experiment. Sections are
+recognised because their input arrays are views into the recorded setpoints (as
+:meth:`BalanceGreyboxModel.sections` builds them); any other input array is simulated on its
+own, from rest.
 
 :meth:`BalanceGreyboxModel.output_derivatives` gives the fit its Jacobian from the linearised
 model (:mod:`~emfc_ros.core.ident.linear_sensitivity`), which the fit checks against the
@@ -48,9 +49,10 @@ MASS_COORDINATES = ('J1c_kgm2', 'm3_kg', 'J2c_kgm2')
 _COORDINATE_STEPS = (1.0e-6, 1.0e-3, 1.0e-7)
 
 #: Pseudo-parameter of the time-domain fit standing for ``F_off_N``: the lever-end rest
-#: position under the initial setpoints (before the record's first sample) [m]. The offset force that gives it is solved from the
-#: static equilibrium for every parameter set, so that changing a mass (and with it the weight
-#: moments) does not move the simulated lever out of the sensor range.
+#: position under the initial setpoints (before the record's first sample) [m]. The offset
+#: force that gives it is solved from the static equilibrium for every parameter set, so
+#: that changing a mass (and with it the weight moments) does not move the simulated lever
+#: out of the sensor range.
 REST_POSITION = 'rest_position_m'
 
 #: Units of the mechanical parameters by name suffix (longest first).
@@ -284,8 +286,8 @@ class BalanceGreyboxModel:
         u = np.ascontiguousarray(setpoints_V, dtype=float)
         if u.ndim != 2 or u.shape[1] != 2 or u.shape[0] < 2:
             raise ValueError(f'setpoints_V must have shape (n >= 2, 2), got {u.shape}')
-        start = u[0] if initial_setpoints_V is None else np.asarray(initial_setpoints_V,
-                                                                     dtype=float)
+        start = (u[0] if initial_setpoints_V is None
+                 else np.asarray(initial_setpoints_V, dtype=float))
         if start.shape != (2,) or not np.all(np.isfinite(start)):
             raise ValueError(f'initial_setpoints_V must be 2 finite voltages, got '
                              f'{initial_setpoints_V!r}')
