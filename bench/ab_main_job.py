@@ -9,7 +9,9 @@ shared VM hits all alike. The variants leave out, in the child process only:
   time series, residual analyses, pole-zero map); the coherence and static figures stay;
 - ``probe_in_line``: the frequency-domain fit's probe for a second optimum (four restarts)
   run in the job's own process before the time-domain fit, as before issue 14's seventh
-  round, instead of in a plot worker during it (the same-run baseline of that change).
+  round, instead of in a plot worker during it (the same-run baseline of that change);
+- ``no_systematic``: the grey-box's type B propagation left out (issue 28: every known input
+  treated as exact), the same-run baseline of its cost (target: shipped <= 1.1 of it).
 
 A variant is a measurement of where the time goes, never a way to run the job
 (``no_greybox_figures`` leaves its report incomplete). Printed per variant: the process wall time
@@ -33,7 +35,7 @@ import tempfile
 import time
 from typing import Dict, List, Tuple
 
-VARIANTS = ('shipped', 'no_greybox_figures', 'probe_in_line')
+VARIANTS = ('shipped', 'no_greybox_figures', 'probe_in_line', 'no_systematic')
 
 CHILD = r"""
 import sys
@@ -48,6 +50,9 @@ def main():
             raise RuntimeError('probe in line (bench variant)')
 
         background.PlotPool.submit_task = refuse
+    elif variant == 'no_systematic':
+        from emfc_ros.core.ident import balance_fit
+        balance_fit.components = lambda *args, **kwargs: []
     elif variant == 'no_greybox_figures':
         from emfc_ros.core.report import background, writer
         step_jobs, report_jobs = background.step_jobs, background.report_jobs

@@ -3,13 +3,16 @@ Numbers derived from the balance's fitted parameters, with first-order uncertain
 
 ``F_off_N``, the mass-matrix entries, the coordinates J1c, m3 and J2c, both modes and the coil
 anti-resonance of the linearised fitted model (:func:`derived_quantities`), by propagating the
-fit's covariance through finite differences (:func:`propagate`).
+fit's covariance through finite differences (:func:`propagate`), and their systematic part
+from the fit's (:mod:`~emfc_ros.core.ident.systematic`).
 """
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import math
-from typing import Any, Callable, Dict, Mapping, Sequence, Tuple
+from typing import Callable, Dict, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -17,9 +20,44 @@ from emfc_ros.core.ident.balance_greybox import (BalanceGreyboxModel, MASS_COORD
                                                  REST_POSITION, unit_of)
 from emfc_ros.core.ident.balance_result import Derived, MASS_KEYS, MODE_KEYS, Setting
 from emfc_ros.core.ident.greybox import GreyboxResult
+from emfc_ros.core.ident.systematic import LOAD_MASS, SystematicBudget
 from emfc_ros.core.model.linear import linearise, LinearModel
 from emfc_ros.core.model.load import loaded
 from emfc_ros.core.model.mechanics import mass_matrix
+from emfc_ros.core.model.parameters import MechanicalParameters
+
+
+def gradient(fun: Callable[[Dict[str, float]], np.ndarray], values: Dict[str, float],
+             names: Sequence[str], steps: Mapping[str, float]) -> Tuple[np.ndarray, np.ndarray]:
+    """
+    Value and central-difference gradient of a vector function.
+
+    Parameters
+    ----------
+    fun : callable
+        ``fun(values) -> ndarray``.
+    values : dict of str to float
+        The estimate.
+    names : sequence of str
+        Parameters to differentiate by.
+    steps : mapping of str to float
+        Finite-difference step per parameter.
+
+    Returns
+    -------
+    value : ndarray
+        ``fun(values)``.
+    grad : ndarray, shape (value.size, len(names))
+        ``d fun / d parameter``.
+    """
+    f0 = np.asarray(fun(values), dtype=float)
+    grads = []
+    for n in names:
+        h = float(steps[n])
+        up = np.asarray(fun(dict(values, **{n: values[n] + h})), dtype=float)
+        down = np.asarray(fun(dict(values, **{n: values[n] - h})), dtype=float)
+        grads.append((up - down) / (2.0 * h))
+    return f0, (np.column_stack(grads) if grads else np.zeros((f0.size, 0)))
 
 
 def propagate(fun: Callable[[Dict[str, float]], np.ndarray], values: Dict[str, float],
@@ -46,19 +84,16 @@ def propagate(fun: Callable[[Dict[str, float]], np.ndarray], values: Dict[str, f
     value, std : ndarray
         ``fun(values)`` and the standard uncertainties.
     """
-    f0 = np.asarray(fun(values), dtype=float)
-    grads = []
-    for n in names:
-        h = float(steps[n])
-        up = np.asarray(fun(dict(values, **{n: values[n] + h})), dtype=float)
-        down = np.asarray(fun(dict(values, **{n: values[n] - h})), dtype=float)
-        grads.append((up - down) / (2.0 * h))
-    g = np.column_stack(grads) if grads else np.zeros((f0.size, 0))
+    f0, g = gradient(fun, values, names, steps)
+    return f0, _std(g, covariance)
+
+
+def _std(g: np.ndarray, covariance: np.ndarray) -> np.ndarray:
     cov = np.asarray(covariance, dtype=float)
     if not np.all(np.isfinite(cov)):
-        return f0, np.full(f0.size, np.nan)
+        return np.full(g.shape[0], np.nan)
     var = np.einsum('ij,jk,ik->i', g, cov, g)
-    return f0, np.sqrt(np.maximum(var, 0.0))
+    return np.sqrt(np.maximum(var, 0.0))
 
 
 def modal_summary(lin: LinearModel) -> np.ndarray:
@@ -88,7 +123,8 @@ def modal_summary(lin: LinearModel) -> np.ndarray:
 
 
 def derived_quantities(model: BalanceGreyboxModel, fit: GreyboxResult,
-                       setting: Setting) -> Dict[str, Derived]:
+                       setting: Setting, budget: Optional[SystematicBudget] = None
+                       ) -> Dict[str, Derived]:
     """
     ``F_off_N``, mass-matrix entries, modes and anti-resonance with uncertainties.
 
@@ -100,6 +136,9 @@ def derived_quantities(model: BalanceGreyboxModel, fit: GreyboxResult,
         The fit.
     setting : Setting
         The configuration.
+    budget : SystematicBudget, optional
+        The free parameters' systematic changes (:mod:`~emfc_ros.core.ident.systematic`):
+        the derived numbers' are added to it and their systematic uncertainty set.
 
     Returns
     -------
@@ -111,20 +150,58 @@ def derived_quantities(model: BalanceGreyboxModel, fit: GreyboxResult,
     steps = {n: 1e-5 * (abs(values[n]) or 1.0) if n != REST_POSITION else 1e-9 for n in names}
     cov = fit.covariance if fit.covariance is not None else np.full((len(names),) * 2, np.nan)
 
-    def mechanics(v: Dict[str, float]) -> Any:
-        return loaded(model.balance(v).mechanics, setting.load_mass_kg,
-                      setting.load_changer_coupled)
-
     def numbers(v: Dict[str, float]) -> np.ndarray:
-        own = model.balance(v).mechanics
-        mech = mechanics(v)
-        m = mass_matrix(np.zeros(2), mech)
-        return np.concatenate(([own.F_off_N, m[0, 0], m[0, 1], m[1, 1]],
-                               [getattr(own, n) for n in MASS_COORDINATES],
-                               modal_summary(linearise(mech))))
+        return numbers_at(model, setting, v)
 
-    value, std = propagate(numbers, values, names, cov, steps)
+    value, grad = gradient(numbers, values, names, steps)
+    std = _std(grad, cov)
     keys = (('F_off_N', 'N'),) + MASS_KEYS + tuple((n, unit_of(n)) for n in MASS_COORDINATES) \
         + MODE_KEYS
-    return {k: Derived(float(v), float(s), u) for (k, u), v, s in zip(keys, value, std)
-            if math.isfinite(v)}
+    if budget is not None:
+        # the fit's changes through the same gradient, the pan load's own part beside them
+        changes = grad @ budget.parameter_steps(names)
+        for k, c in enumerate(budget.components):
+            # a known input that the numbers depend on themselves (the pan load and the fixed
+            # lengths and masses convert mass-matrix entries to coordinates), the fit held
+            moved, moved_setting = copy.copy(model), setting
+            if c.effect == LOAD_MASS:
+                moved.load_mass_kg = setting.load_mass_kg * (1.0 + c.step)
+                moved_setting = dataclasses.replace(setting, load_mass_kg=moved.load_mass_kg)
+            elif c.effect in MechanicalParameters.__dataclass_fields__:
+                moved.params = model.params.with_mechanics(**{c.effect: float(
+                    getattr(model.params.mechanics, c.effect)) + c.step})
+            else:
+                continue
+            changes[:, k] += numbers_at(moved, moved_setting, values) - value
+        for (key, _), row in zip(keys, changes):
+            budget.add(key, {c.name: float(v) for c, v in zip(budget.components, row)})
+    return {k: Derived(float(v), float(s), u,
+                       budget.standard_uncertainty(k) if budget is not None else math.nan)
+            for (k, u), v, s in zip(keys, value, std) if math.isfinite(v)}
+
+
+def numbers_at(model: BalanceGreyboxModel, setting: Setting,
+               values: Dict[str, float]) -> np.ndarray:
+    """
+    The derived numbers of :func:`derived_quantities` at some parameter values.
+
+    Parameters
+    ----------
+    model : BalanceGreyboxModel
+        The time-domain model (its pan load converts the mass-matrix entries).
+    setting : Setting
+        The configuration (pan load, coupling).
+    values : dict of str to float
+        The fit's free parameters.
+
+    Returns
+    -------
+    ndarray
+        ``F_off_N``, the mass-matrix entries, the mass coordinates, the modal summary.
+    """
+    own = model.balance(values).mechanics
+    mech = loaded(own, setting.load_mass_kg, setting.load_changer_coupled)
+    m = mass_matrix(np.zeros(2), mech)
+    return np.concatenate(([own.F_off_N, m[0, 0], m[0, 1], m[1, 1]],
+                           [getattr(own, n) for n in MASS_COORDINATES],
+                           modal_summary(linearise(mech))))

@@ -62,6 +62,7 @@ from emfc_ros.core.ident.initial_state import correct_record
 from emfc_ros.core.ident.metrics import fit_percent, input_correlation_test, whiteness_test
 from emfc_ros.core.ident.noise_model import whitening_weights
 from emfc_ros.core.ident.pattern_search import PatternSearchOptions
+from emfc_ros.core.ident.systematic import components, fit_budget, fit_effects
 from emfc_ros.core.model.linear import linearise
 from emfc_ros.core.model.load import loaded
 from emfc_ros.core.sim.kernel import resolved_backend
@@ -926,13 +927,17 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
     def candidate(parameters: Dict[str, float]) -> None:
         on_model(linearised(parameters)[1], parameters)
 
+    # the known inputs' stated uncertainties, propagated by the fit (systematic.py)
+    known = components(setting.balance, [s.name for s in specs])
+    effects = fit_effects(known)
     try:
         fit = fit_greybox(simulate, data, specs, method=gcfg.method, options=options,
                           max_nfev=max_nfev, noise_weights=weights, transients=transients,
                           tolerance=TIME_DOMAIN_TOLERANCE, workers=simulation_workers(model),
                           output_derivatives=model.output_derivatives,
                           residual_tests=not gcfg.noise_weighting,
-                          on_candidate=candidate if on_model is not None else None)
+                          on_candidate=candidate if on_model is not None else None,
+                          systematic=(effects, model.input_derivatives) if effects else None)
     except (IdentificationError, ValueError, RuntimeError) as exc:
         verdict.failures.append(f'greybox: {exc}')
         if probe is not None:           # what the probe in line would have added
@@ -962,7 +967,8 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
         fit = dataclasses.replace(fit, sections=residual_tests(model, fit, data, setting,
                                                                record=record))
     check(fit, specs, fd, verdict)
-    derived = derived_quantities(model, fit, setting)
+    budget = fit_budget(known, effects, fit.free_names, fit.systematic_sensitivity)
+    derived = derived_quantities(model, fit, setting, budget)
     check_masses(derived, setting, gcfg.mass_relative_uncertainty, verdict)
     check_uncertainties(fit, gcfg.mass_relative_uncertainty, verdict, skip=(REST_POSITION,))
     mass_fixed = [n for n in (choice.fixed if choice is not None else {})
@@ -992,7 +998,7 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
                   for n in fitted.mechanics.__dataclass_fields__}
     out = BalanceGreyboxResult(fit, {s.name: s.initial for s in specs}, lin, parameters,
                                derived, fd, choice, sources, time_domain,
-                               initial_state=start_state)
+                               initial_state=start_state, systematic=budget)
     out.time_s.update(signals.time_s)
     out.measured_m.update(signals.measured_m)
     out.simulated_m.update(signals.simulated_m)

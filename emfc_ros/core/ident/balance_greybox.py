@@ -310,6 +310,8 @@ class BalanceGreyboxModel:
         self._sensitivity: Optional[LinearSensitivity] = None
         self._derivatives: Optional[np.ndarray] = None
         self._derivatives_key: Optional[tuple] = None
+        self._input_derivatives: Optional[np.ndarray] = None
+        self._input_derivatives_key: Optional[tuple] = None
 
     def balance(self, values: Mapping[str, float]) -> BalanceParameters:
         """
@@ -509,6 +511,83 @@ class BalanceGreyboxModel:
             with self._lock:
                 self._derivatives, self._derivatives_key = cached, key
         return cached[first:first + inputs.shape[0]]
+
+    def input_derivatives(self, values: Mapping[str, float], names: Sequence[str],
+                          inputs: np.ndarray, outputs: np.ndarray) -> Optional[np.ndarray]:
+        """
+        Derivatives of a section's output error by inputs the fit takes as known.
+
+        ``fit_greybox``'s ``systematic`` (:mod:`~emfc_ros.core.ident.systematic`): from the
+        linearised model, at the fit's parameter values.
+
+        Parameters
+        ----------
+        values : mapping of str to float
+            All parameters of the fit.
+        names : sequence of str
+            Known inputs: ``position_scale`` (the measured position scaled by ``1 + beta``),
+            ``coil_force_scale`` and ``pan_force_scale`` (an input force scaled by ``1 +
+            beta``), or a fixed mechanical parameter by name (per unit of it, the fitted ones
+            held: mass-matrix entries stay, their coordinates follow).
+        inputs : ndarray, shape (n, 2)
+            Setpoints of a section: a view into the recording.
+        outputs : ndarray, shape (n,)
+            The measured position of the section [m].
+
+        Returns
+        -------
+        ndarray, shape (n, len(names)) or None
+            ``d(y_hat - y) / d beta`` [m per unit]; None where the linearised model does not
+            serve (inputs not a view into the recording, first-order hold).
+        """
+        first = self.offset(inputs)
+        if first is None or self.hold != 'zoh':
+            return None
+        n = inputs.shape[0]
+        model_names = tuple(m for m in names if m != 'position_scale')
+        key = (tuple(sorted((k, float(v)) for k, v in values.items())), model_names)
+        cached = self._input_derivatives if self._input_derivatives_key == key else None
+        if cached is None:
+            cached = self._record_input_derivatives(values, model_names)
+            self._input_derivatives, self._input_derivatives_key = cached, key
+        out = np.zeros((n, len(names)))
+        for k, name in enumerate(names):
+            if name == 'position_scale':
+                out[:, k] = -np.asarray(outputs, dtype=float).reshape(n)
+            else:
+                out[:, k] = cached[first:first + n, model_names.index(name)]
+        return out
+
+    def _record_input_derivatives(self, values: Mapping[str, float],
+                                  names: Sequence[str]) -> np.ndarray:
+        """:meth:`input_derivatives` of the model's inputs over the whole record."""
+        params, x0 = self.start(values)
+        if self._sensitivity is None:
+            self._sensitivity = LinearSensitivity(
+                self.setpoints_V, self.sample_rate_Hz, self.load_mass_kg,
+                self.load_changer_coupled, min_substeps(params, self.sample_rate_Hz),
+                initial_setpoints_V=self.initial_setpoints_V)
+        out = np.zeros((self.setpoints_V.shape[0], len(names)))
+        mech_names = [m for m in names if m in params.mechanics.__dataclass_fields__]
+        unknown = [m for m in names if m not in mech_names
+                   and m not in ('coil_force_scale', 'pan_force_scale')]
+        if unknown:
+            raise ValueError(f'unknown known inputs {unknown}')
+        if mech_names:
+            at = dict(values, **{m: float(getattr(params.mechanics, m)) for m in mech_names
+                                 if m not in values})
+            mech = self._sensitivity.derivatives(
+                params, x0, mech_names, at,
+                lambda v: with_values(self.params, v, self.load_mass_kg,
+                                      self.load_changer_coupled), REST_POSITION)
+            for j, m in enumerate(mech_names):
+                out[:, names.index(m)] = mech[:, j]
+        if 'coil_force_scale' in names or 'pan_force_scale' in names:
+            forces = self._sensitivity.input_responses(params, x0)
+            for j, m in enumerate(('coil_force_scale', 'pan_force_scale')):
+                if m in names:
+                    out[:, names.index(m)] = forces[:, j]
+        return out
 
     def sections(self, position_m: np.ndarray, spans: Sequence[Tuple[str, int, int]],
                  weights: Optional[Mapping[str, float]] = None) -> List[DataSection]:

@@ -10,6 +10,7 @@ each parameter comes from), :class:`Derived`, :class:`Verdict`, :class:`Setting`
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import math
 from typing import Any, Dict, List, Optional
 
 import numpy as np
@@ -19,6 +20,7 @@ from emfc_ros.core.ident.balance_greybox import (MASS_COORDINATES, MASS_MATRIX_N
                                                  REST_POSITION, unit_of)
 from emfc_ros.core.ident.greybox import GreyboxResult
 from emfc_ros.core.ident.identifiability import FreeSetChoice, Identifiability
+from emfc_ros.core.ident.systematic import combined, SystematicBudget
 from emfc_ros.core.model.linear import LinearModel
 from emfc_ros.core.model.parameters import BalanceParameters
 
@@ -40,14 +42,23 @@ class Derived:
     value : float
         The value.
     standard_uncertainty : float
-        First-order propagation of the fit's covariance.
+        Statistical part: first-order propagation of the fit's covariance.
     unit : str
         SI unit.
+    systematic_uncertainty : float
+        Systematic part: the stated uncertainties of the known inputs propagated
+        (:mod:`~emfc_ros.core.ident.systematic`; NaN when not propagated).
     """
 
     value: float
     standard_uncertainty: float
     unit: str
+    systematic_uncertainty: float = math.nan
+
+    @property
+    def combined_uncertainty(self) -> float:
+        """Combined standard uncertainty ``sqrt(statistical^2 + systematic^2)``."""
+        return combined(self.standard_uncertainty, self.systematic_uncertainty)
 
 
 @dataclass
@@ -88,6 +99,9 @@ class BalanceGreyboxResult:
         The record's estimated initial-state deviation from rest under the first setpoints
         (:mod:`~emfc_ros.core.ident.initial_state`); the simulated positions include its
         free response.
+    systematic : SystematicBudget or None
+        Every identified number's change per known input (type B,
+        :mod:`~emfc_ros.core.ident.systematic`).
     """
 
     fit: GreyboxResult
@@ -104,6 +118,24 @@ class BalanceGreyboxResult:
     simulated_m: Dict[str, np.ndarray] = field(default_factory=dict)
     inputs_V: Dict[str, np.ndarray] = field(default_factory=dict)
     initial_state: Optional[Any] = None
+    systematic: Optional[SystematicBudget] = None
+
+    def systematic_uncertainty(self, name: str) -> float:
+        """
+        Systematic standard uncertainty of a free parameter or derived number.
+
+        Parameters
+        ----------
+        name : str
+            The number.
+
+        Returns
+        -------
+        float
+            NaN when not propagated.
+        """
+        return (self.systematic.standard_uncertainty(name) if self.systematic is not None
+                else math.nan)
 
 
 @dataclass
@@ -229,7 +261,10 @@ def parameter_table(g: BalanceGreyboxResult, balance: Optional[BalanceParameters
     Returns
     -------
     list of dict
-        ``name, value, unit, status, source, standard_uncertainty`` (None when fixed), and a
+        ``name, value, unit, status, source, standard_uncertainty`` (None when fixed; the
+        statistical part, with ``systematic_standard_uncertainty`` and
+        ``combined_standard_uncertainty`` beside it for identified ones, the
+        ``stated_standard_uncertainty`` for fixed ones that have one), and a
         ``note`` for identified parameters that hold only together with fixed ones and for
         the characteristics (what each converts).
     """
@@ -239,14 +274,23 @@ def parameter_table(g: BalanceGreyboxResult, balance: Optional[BalanceParameters
         through.update({n: MASS_MATRIX_NAMES for n in MASS_COORDINATES})
         identified = name in g.fit.free_names or (
             name in through and all(t in g.fit.free_names for t in through[name]))
+        sys_u = math.nan
         if identified and name in through and name in g.derived:
             se: Optional[float] = g.derived[name].standard_uncertainty
+            sys_u = g.derived[name].systematic_uncertainty
         else:
             se = g.fit.standard_errors.get(name) if identified else None
+            sys_u = g.systematic_uncertainty(name) if identified else math.nan
         row = {'name': name, 'value': value, 'unit': unit_of(name),
                'status': 'identified' if identified else 'fixed',
                'source': g.sources.get(name, 'configuration (balance)'),
                'standard_uncertainty': se}
+        if identified and se is not None:
+            _uncertainties(row, se, sys_u)
+        elif not identified and balance is not None:
+            stated = stated_uncertainty(balance, name)
+            if stated is not None:
+                row['stated_standard_uncertainty'] = stated
         if identified and name in CONDITIONAL:
             row['note'] = CONDITIONAL[name]
         rows.append(row)
@@ -267,8 +311,42 @@ def parameter_table(g: BalanceGreyboxResult, balance: Optional[BalanceParameters
                          'unit': unit, 'status': 'fixed',
                          'source': characteristic_source(balance, part),
                          'standard_uncertainty': None,
+                         'stated_relative_standard_uncertainty': float(getattr(
+                             balance.uncertainties, STATED_GAIN[part])),
                          'note': f'fixed on purpose: converts {role}'})
     return rows
+
+
+#: The ``uncertainties`` key stating each characteristic's gain uncertainty.
+STATED_GAIN = {'coil_amplifier': 'coil_amplifier_gain_relative',
+               'motor': 'motor_coefficient_relative', 'sensor': 'sensor_gain_relative',
+               'load_changer_amplifier': 'load_changer_amplifier_gain_relative',
+               'load_changer': 'load_changer_force_relative'}
+
+
+def stated_uncertainty(balance: BalanceParameters, name: str) -> Optional[float]:
+    """
+    The stated standard uncertainty of a fixed mechanical parameter, in its unit.
+
+    Parameters
+    ----------
+    balance : BalanceParameters
+        The balance (its ``uncertainties``).
+    name : str
+        A mechanical parameter.
+
+    Returns
+    -------
+    float or None
+        None where the ``uncertainties`` section states none for it.
+    """
+    stated = balance.uncertainties
+    if name in ('l1_m', 'l2_m', 'l3_m'):
+        return float(stated.lever_length_m)
+    if name == 'load_changer_mass_kg':
+        return float(stated.load_changer_mass_relative
+                     * balance.mechanics.load_changer_mass_kg)
+    return None
 
 
 def root_dict(root: Any) -> dict:
@@ -291,6 +369,24 @@ def root_dict(root: Any) -> dict:
             'damping_ratio': root.damping_ratio}
 
 
+#: What ``results.yaml``'s ``greybox.systematic`` holds.
+SYSTEMATIC_NOTE = ('type B (GUM): the stated standard uncertainties of the inputs the fit '
+                   "takes as known (the balance file's uncertainties section) propagated to "
+                   'every number by first-order sensitivities; standard_error / '
+                   'standard_uncertainty are the statistical part, '
+                   'systematic_standard_uncertainty the type B part, '
+                   'combined_standard_uncertainty both (k = 1); docs/identification.md, '
+                   '"Systematic uncertainties"')
+
+
+def _uncertainties(row: dict, statistical: float, systematic: float) -> dict:
+    """A row with its systematic and combined standard uncertainty added."""
+    row['systematic_standard_uncertainty'] = systematic if math.isfinite(systematic) else None
+    row['combined_standard_uncertainty'] = (combined(statistical, systematic)
+                                            if math.isfinite(systematic) else None)
+    return row
+
+
 def greybox_dict(g: Optional[BalanceGreyboxResult]) -> Optional[dict]:
     """
     The grey-box result as plain data (units in the keys or next to the values).
@@ -310,15 +406,17 @@ def greybox_dict(g: Optional[BalanceGreyboxResult]) -> Optional[dict]:
         return None
     fit = g.fit
     free = list(fit.free_names)
-    params = {name: {'value': fit.parameters[name],
-                     'standard_error': fit.standard_errors[name],
-                     'initial': g.initial.get(name), 'unit': unit_of(name)}
+    params = {name: _uncertainties({'value': fit.parameters[name],
+                                    'standard_error': fit.standard_errors[name],
+                                    'initial': g.initial.get(name), 'unit': unit_of(name)},
+                                   fit.standard_errors[name], g.systematic_uncertainty(name))
               for name in free}
     if 'F_off_N' in g.derived and REST_POSITION in free:
         d = g.derived['F_off_N']
-        params['F_off_N'] = {'value': d.value, 'standard_error': d.standard_uncertainty,
-                             'initial': None, 'unit': 'N',
-                             'note': f'from {REST_POSITION} through the static equilibrium'}
+        params['F_off_N'] = _uncertainties(
+            {'value': d.value, 'standard_error': d.standard_uncertainty, 'initial': None,
+             'unit': 'N', 'note': f'from {REST_POSITION} through the static equilibrium'},
+            d.standard_uncertainty, d.systematic_uncertainty)
     lin = g.linear_model
     fd = g.frequency_domain
     choice = g.identifiability
@@ -330,8 +428,13 @@ def greybox_dict(g: Optional[BalanceGreyboxResult]) -> Optional[dict]:
         'jacobian_method': fit.jacobian_method,
         'derivative_check': fit.derivative_check,
         'parameters': params,
-        'derived': {k: {'value': v.value, 'standard_uncertainty': v.standard_uncertainty,
-                        'unit': v.unit} for k, v in g.derived.items()},
+        'derived': {k: _uncertainties({'value': v.value,
+                                       'standard_uncertainty': v.standard_uncertainty,
+                                       'unit': v.unit},
+                                      v.standard_uncertainty, v.systematic_uncertainty)
+                    for k, v in g.derived.items()},
+        'systematic': None if g.systematic is None else dict(
+            g.systematic.to_dict(), note=SYSTEMATIC_NOTE),
         'correlation': {'names': free, 'matrix': np.asarray(fit.correlation).tolist()},
         'sections': [{'name': s.name, 'fit_percent': float(np.min(s.fit_percent)),
                       'rms_error_m': float(np.max(s.rms_error)),

@@ -111,6 +111,10 @@ JACOBIAN_METHODS = {'central': 'central differences of the simulation',
                     'forward': 'forward differences of the simulation'}
 Simulate = Callable[[Dict[str, float], np.ndarray], np.ndarray]
 Derivatives = Callable[[Dict[str, float], Sequence[str], np.ndarray], Optional[np.ndarray]]
+#: ``derivatives(params, names, inputs, outputs)`` of known inputs (``fit_greybox``'s
+#: ``systematic``).
+InputDerivatives = Callable[[Dict[str, float], Sequence[str], np.ndarray, np.ndarray],
+                            Optional[np.ndarray]]
 
 
 @dataclass(frozen=True)
@@ -259,6 +263,11 @@ class GreyboxResult:
     derivative_check : float
         With the caller's output derivatives: their largest relative difference from the
         simulation's own derivative along the two checked directions (NaN when not checked).
+    systematic_names : tuple of str
+        The known inputs of ``fit_greybox``'s ``systematic`` (empty without).
+    systematic_sensitivity : ndarray or None
+        ``d theta / d beta``, shape (free parameters, inputs): how the estimate moves per
+        unit error of each known input.
     """
 
     parameters: Dict[str, float]
@@ -278,6 +287,8 @@ class GreyboxResult:
     initial: Optional[Dict[str, float]] = None
     jacobian_method: str = 'none'
     derivative_check: float = math.nan
+    systematic_names: Tuple[str, ...] = ()
+    systematic_sensitivity: Optional[np.ndarray] = None
 
     def moved(self, relative: float = 1.0e-6) -> bool:
         """
@@ -408,14 +419,33 @@ class _Problem:
         """The residuals' Jacobian from the output derivatives (None if any is missing)."""
         values = self.params(theta)
         names = [s.name for s in self.free]
-        p = len(names)
-        parts = []
-        weights = self.noise_weights or [None] * len(self.sections)
-        qs = self.transient_q or [None] * len(self.sections)
-        for (sec, y, w), nw, q in zip(self.sections, weights, qs):
+        columns = []
+        for sec, _, _ in self.sections:
             d = self.output_derivatives(values, names, np.asarray(sec.inputs, dtype=float))
             if d is None:
                 return None
+            columns.append(d)
+        return self.weighted(columns)
+
+    def weighted(self, columns: Sequence[np.ndarray]) -> np.ndarray:
+        """
+        Output-error derivatives per section, as the residual vector weighs them.
+
+        Parameters
+        ----------
+        columns : sequence of ndarray
+            Per section, ``d(y_hat - y) / d beta`` of shape (n, q) (one output column).
+
+        Returns
+        -------
+        ndarray, shape (residuals, q)
+            The residual vector's derivatives.
+        """
+        parts = []
+        weights = self.noise_weights or [None] * len(self.sections)
+        qs = self.transient_q or [None] * len(self.sections)
+        for (sec, y, w), nw, q, d in zip(self.sections, weights, qs, columns):
+            p = np.shape(d)[-1]
             d = np.asarray(d, dtype=float).reshape(y.shape[0], -1, p)
             if nw is None:
                 parts.append((d * w[None, :, None]).reshape(-1, p))
@@ -446,7 +476,8 @@ def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
                 tolerance: float = 1.0e-8, workers: int = 1,
                 output_derivatives: Optional[Derivatives] = None,
                 residual_tests: bool = True,
-                on_candidate: Optional[Callable[[Dict[str, float]], None]] = None
+                on_candidate: Optional[Callable[[Dict[str, float]], None]] = None,
+                systematic: Optional[Tuple[Sequence[str], InputDerivatives]] = None
                 ) -> GreyboxResult:
     """
     Fit the free parameters of a simulation to measured sections.
@@ -511,6 +542,14 @@ def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
         usually ends there (the result then holds exactly these values), so a caller can
         start on what depends only on the values (e.g. the model's figures) while the check
         runs; when the check fails the iteration goes on and the result differs.
+    systematic : (names, derivatives), optional
+        Inputs taken as known (``beta``) whose errors the fit cannot see, and
+        ``derivatives(params, names, inputs, outputs)`` giving a section's ``d(y_hat - y) /
+        d beta`` of shape (n, len(names)) at the estimate (a model input moves ``y_hat``, a
+        measurement scale ``y``). With ``uncertainty``: the estimate's first-order change
+        per unit of each input, ``d theta / d beta = -(J^T J)^-1 J^T G`` with ``G`` those
+        derivatives weighted as the residuals are (the fit re-minimising with the input
+        changed), in :attr:`GreyboxResult.systematic_sensitivity`.
 
     Returns
     -------
@@ -538,6 +577,7 @@ def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
             raise IdentificationError('noise_weights need one array of n // 2 + 1 weights per '
                                       'single-output section')
     start = time.perf_counter()
+    sensitivity = None
     problem = _Problem(simulate, sections, parameters, noise_weights, transients,
                        output_derivatives if method == 'gauss_newton' else None)
     free = problem.free
@@ -609,6 +649,8 @@ def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
         se = np.sqrt(np.maximum(np.diag(cov), 0.0))
         with np.errstate(divide='ignore', invalid='ignore'):
             corr = cov / np.outer(se, se)
+        if systematic is not None and len(systematic[0]):
+            sensitivity = _systematic_sensitivity(problem, theta, jac, h_inv, systematic)
     values = problem.params(theta)
     errors = {s.name: 0.0 for s in parameters}
     for spec, value in zip(free, se):
@@ -619,7 +661,27 @@ def fit_greybox(simulate: Simulate, sections: Sequence[DataSection],
                          success, reason, fits, cov,
                          covariance if uncertainty else 'none',
                          {s.name: float(s.initial) for s in free},
-                         jacobian_method if uncertainty else 'none', check)
+                         jacobian_method if uncertainty else 'none', check,
+                         tuple(systematic[0]) if sensitivity is not None else (),
+                         sensitivity)
+
+
+def _systematic_sensitivity(problem: _Problem, theta: np.ndarray, jac: np.ndarray,
+                            h_inv: np.ndarray,
+                            systematic: Tuple[Sequence[str], InputDerivatives]
+                            ) -> Optional[np.ndarray]:
+    """``d theta / d beta`` of the known inputs (see :func:`fit_greybox`), or None."""
+    names, derivatives = list(systematic[0]), systematic[1]
+    values = problem.params(theta)
+    columns = []
+    for sec, y, _ in problem.sections:
+        d = derivatives(values, names, np.asarray(sec.inputs, dtype=float), y)
+        if d is None:
+            return None
+        columns.append(np.asarray(d, dtype=float).reshape(y.shape[0], len(names)))
+    g = problem.weighted(columns)
+    with np.errstate(invalid='ignore'):
+        return -(h_inv @ (jac.T @ g))
 
 
 def _check_specs(parameters: Sequence[ParameterSpec]) -> None:

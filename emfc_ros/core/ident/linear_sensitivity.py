@@ -249,3 +249,38 @@ class LinearSensitivity:
                     col += 1
         out += signals.view(np.float64) @ coeff
         return out
+
+    def input_responses(self, params: BalanceParameters, x0: np.ndarray) -> np.ndarray:
+        """
+        The linearised position response to each input's deviation from its initial value.
+
+        ``y_j[n] = sum_i Re(r_ij s_ij[n])`` (the terms of :meth:`derivatives`' response): the
+        part of the position the coil current (``j = 0``) and the pan force (``j = 1``) drive.
+        A force scale ``1 + e`` on input ``j`` changes the position by ``e y_j`` to first
+        order (the rest under the initial setpoints stays where the fitted rest position puts
+        it: the offset force is solved for it).
+
+        Parameters
+        ----------
+        params : BalanceParameters
+            The balance.
+        x0 : ndarray, shape (4,)
+            Its rest state under the initial setpoints.
+
+        Returns
+        -------
+        ndarray, shape (n, 2)
+            Coil part and pan part of the position [m].
+        """
+        i_coil, f_pan, i_ref, f_ref = self._input_currents(params)
+        drive = np.column_stack((i_coil - i_ref, f_pan - f_ref))
+        lam, res = self.modal(params, x0, params.mechanics)
+        out = np.zeros((i_coil.size, 2))
+        for i in range(lam.size):
+            if lam[i].imag < -1e-15 * abs(lam[i]):
+                continue                    # its conjugate counts it twice
+            weight = 2.0 if lam[i].imag > 1e-15 * abs(lam[i]) else 1.0
+            for j in range(2):
+                s, _ = modal_pair(lam[i], drive[:, j])
+                out[:, j] += weight * (res[i, j] * s).real
+        return out

@@ -19,6 +19,7 @@ from emfc_ros.core.config import (get_float, get_float_list, get_int, get_mappin
 from emfc_ros.core.errors import ConfigError
 from emfc_ros.core.model.peripherals import (Amplifier, check_monotonic, LoadChanger,
                                              MotorCoefficient, PositionSensor)
+from emfc_ros.core.model.uncertainties import StatedUncertainties
 from emfc_ros.core.safe_yaml import load_yaml_file, one_line
 
 #: Length bound used for geometry [m].
@@ -179,6 +180,9 @@ class BalanceParameters:
         Load changer actuator (current to force on the pan).
     converters : ConverterParameters
         ADC, DAC, ranges, stops and noise levels.
+    uncertainties : StatedUncertainties
+        Standard uncertainties of the characteristics, geometry and masses the identification
+        takes as known (optional section; the simulator does not use it).
     """
 
     mechanics: MechanicalParameters = field(default_factory=MechanicalParameters)
@@ -188,6 +192,7 @@ class BalanceParameters:
     load_changer_amplifier: Amplifier = field(default_factory=Amplifier)
     load_changer: LoadChanger = field(default_factory=LoadChanger)
     converters: ConverterParameters = field(default_factory=ConverterParameters)
+    uncertainties: StatedUncertainties = field(default_factory=StatedUncertainties)
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any], path: str = 'balance',
@@ -199,7 +204,8 @@ class BalanceParameters:
         ----------
         cfg : Mapping
             Mapping with the sections ``mechanics``, ``coil_amplifier``, ``motor``, ``sensor``,
-            ``load_changer_amplifier``, ``load_changer`` and ``converters``.
+            ``load_changer_amplifier``, ``load_changer`` and ``converters``, and optionally
+            ``uncertainties`` (every key optional, defaults of :class:`StatedUncertainties`).
         path : str
             Dotted path of ``cfg`` for error messages.
         base : BalanceParameters, optional
@@ -224,14 +230,15 @@ class BalanceParameters:
         for name in names:
             sub = join(path, name)
             current = getattr(base, name) if base is not None else None
-            kwargs = {'default': None} if base is not None else {}
+            kwargs = {'default': None} if base is not None or name == 'uncertainties' else {}
             section = get_mapping(cfg, name, path, **kwargs)
             if section is None:
-                values[name] = current
+                values[name] = current if current is not None else StatedUncertainties()
             elif name in _PERIPHERALS:
                 values[name] = _peripheral_from_mapping(name, section, sub, current)
             else:
-                klass = MechanicalParameters if name == 'mechanics' else ConverterParameters
+                klass = {'mechanics': MechanicalParameters,
+                         'uncertainties': StatedUncertainties}.get(name, ConverterParameters)
                 values[name] = _flat_from_mapping(klass, section, sub, current)
         params = cls(**values)
         _check_consistency(params, path)

@@ -116,13 +116,19 @@ def summary_markdown(result: Any, plots: Sequence[str] = (),
         lines += ['## Grey-box model (two-beam mechanics, simulation error)', '',
                   f'Optimiser {g["method"]}: {g["exit_reason"]} after '
                   f'{g["optimizer_evaluations"]} evaluations in {g["time_s"]:.2f} s.', '',
-                  '| parameter | estimate | standard error | start | unit |',
-                  '|---|---|---|---|---|']
+                  '| parameter | estimate | standard error | systematic | combined (k = 1) | '
+                  'start | unit |',
+                  '|---|---|---|---|---|---|---|']
         for name, p in g['parameters'].items():
             se, start = p['standard_error'], p['initial']
+            sy, uc = p.get('systematic_standard_uncertainty'), p.get(
+                'combined_standard_uncertainty')
             lines.append(f'| {name} | {p["value"]:.6g} | '
                          f'{"n/a" if se is None else f"{se:.2g}"} | '
+                         f'{"n/a" if sy is None else f"{sy:.2g}"} | '
+                         f'{"n/a" if uc is None else f"{uc:.2g}"} | '
                          f'{"derived" if start is None else f"{start:.6g}"} | {p["unit"]} |')
+        lines += systematic_lines(g)
         lines += ['', '| section | fit [%] | rms error [nm] | residual white [% of lags] | '
                   'residual-input uncorrelated [% of lags] |', '|---|---|---|---|---|']
         for s in g['sections']:
@@ -275,3 +281,33 @@ def model_parameter_lines(rows: Optional[Sequence[Mapping[str, Any]]]) -> list:
     lines.append('')
     lines += [f'[{i}] {n}' for i, n in enumerate(notes, 1)]
     return lines + ([''] if notes else [])
+
+
+def systematic_lines(g: dict) -> list:
+    """
+    What the systematic part of the grey-box uncertainties is made of.
+
+    Parameters
+    ----------
+    g : dict
+        ``results.yaml``'s ``greybox``.
+
+    Returns
+    -------
+    list of str
+        Markdown lines (empty without a systematic budget).
+    """
+    budget = g.get('systematic')
+    if not budget or not budget.get('numbers'):
+        return []
+    out = ['', 'Systematic part: the stated standard uncertainties of the inputs the fit takes '
+           "as known (the balance file's `uncertainties`) propagated; the inputs that make "
+           'up most of it:', '']
+    for name, row in budget['numbers'].items():
+        if name not in g['parameters'] and not name.endswith('_Hz'):
+            continue
+        top = ', '.join(f'{d["input"]} {100 * d["variance_share"]:.0f} %'
+                        for d in row['dominant_inputs'][:3])
+        if top:
+            out.append(f'- {name}: {top}')
+    return out
