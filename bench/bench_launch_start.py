@@ -14,7 +14,7 @@ experiment.
 Variants, interleaved run by run (the same-run baseline):
 
 - ``shipped``: the launch file's defaults (start gate ``applier``, two excitation
-  subscriptions, consumer pacing, ``excitation_lead_s`` 0.3 s);
+  subscriptions, consumer pacing, ``excitation_lead_s`` 0.5 s since 2026-12-02, 0.3 s before);
 - ``old_gate``: what the file did before issue 27 (``start_gate:=subscribers
   excitation_subscribers:=1 pacing:=wall excitation_lead_s:=0.1``);
 - ``lead_<s>``: the shipped file with another ``excitation_lead_s`` (``--leads``).

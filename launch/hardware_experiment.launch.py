@@ -66,10 +66,11 @@ def generate_launch_description():
         DeclareLaunchArgument('lead_blocks', default_value='2',
                               description='wall pacing: blocks sent ahead of the wall clock '
                                           '[blocks]'),
-        DeclareLaunchArgument('excitation_lead_s', default_value='0.3',
+        DeclareLaunchArgument('excitation_lead_s', default_value='0.5',
                               description='setpoints are written this far ahead of the '
                                           'device clock [s]; a host stall longer than this '
-                                          'underruns the device (a fault)'),
+                                          'underruns the device (a fault); with consumer '
+                                          'pacing window_blocks must hold it plus one block'),
         DeclareLaunchArgument('load_mass_kg', default_value='-1.0',
                               description='mass on the pan [kg], published for the '
                                           'identification; negative: not declared'),

@@ -671,6 +671,9 @@ class DaqBridgeNode(Node):
         self._queue = ExcitationQueue(self._safe if self._config is not None else [0.0])
         self._acked = -1
         self._last_excitation = None
+        # device index after the last excitation sample written to the device (its setpoints
+        # play out until then: the excitation watchdog counts from there too)
+        self._exc_written_end: Optional[int] = None
 
     def _start(self) -> Tuple[bool, str]:
         with self._start_lock:          # a retry in its thread and a ~/start call
@@ -829,6 +832,7 @@ class DaqBridgeNode(Node):
                 self._expected = None
                 self._last_end = None
                 self._write_index = None
+                self._exc_written_end = None
                 self._offset = None            # the device index restarted: remap
                 self._device_restarted = self._exc_received_end > 0
                 self._queue = ExcitationQueue(self._safe)
@@ -913,7 +917,10 @@ class DaqBridgeNode(Node):
                     self._counts['excitation_late_samples'] += late
                 lead = max(0, q.head_index - w)
                 if lead < n:
-                    out[:, lead:] = q.pop(n - lead)[0]
+                    samples, real = q.pop(n - lead)
+                    out[:, lead:] = samples
+                    if real:
+                        self._exc_written_end = w + lead + real
             if command and not halted:
                 out[0] += command
                 clipped = int(np.count_nonzero((out < self._lo) | (out > self._hi)))
@@ -1186,6 +1193,16 @@ class DaqBridgeNode(Node):
         last = self._last_excitation
         if last is None or not any(not s.active for s in self._specs):
             return
+        # From the last excitation block's arrival; once everything that arrived has been
+        # written to the device, from when the device has played it, if that is later: a
+        # short stream written whole well ahead is not cut before its end (it was, without a
+        # fault, when lead plus stream reached the timeout). Excitation still queued in the
+        # bridge is cut at the trip, a fault (below).
+        with self._lock:
+            drained = self._queue.queued == 0
+        written = self._exc_written_end
+        if drained and written is not None and self._anchor_ns is not None:
+            last = max(last, (self._anchor_ns + written * 1e9 / self._rate) * 1e-9)
         if time.monotonic() - last > self._runtime['watchdog_timeout_s']:
             self._tripped = True
             self._counts['watchdog_trips'] += 1

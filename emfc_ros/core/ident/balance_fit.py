@@ -62,6 +62,7 @@ from emfc_ros.core.ident.initial_state import correct_record
 from emfc_ros.core.ident.metrics import fit_percent, input_correlation_test, whiteness_test
 from emfc_ros.core.ident.noise_model import whitening_weights
 from emfc_ros.core.ident.pattern_search import PatternSearchOptions
+from emfc_ros.core.ident.residual_coherence import residual_coherence
 from emfc_ros.core.ident.systematic import components, fit_budget, fit_effects
 from emfc_ros.core.model.linear import linearise
 from emfc_ros.core.model.load import loaded
@@ -588,7 +589,9 @@ def noise_weights(model: BalanceGreyboxModel, values: Dict[str, float],
 
 def residual_tests(model: BalanceGreyboxModel, fit: Any, data: Sequence[Any],
                    setting: Setting, max_lag: int = 25,
-                   record: Optional[np.ndarray] = None) -> Tuple[Any, ...]:
+                   record: Optional[np.ndarray] = None,
+                   with_estimation_error: bool = True,
+                   band_Hz: Optional[Tuple[float, float]] = None) -> Tuple[Any, ...]:
     """
     Whiteness and input-correlation tests of the final residuals, pre-whitened.
 
@@ -622,6 +625,12 @@ def residual_tests(model: BalanceGreyboxModel, fit: Any, data: Sequence[Any],
         Largest lag tested [samples].
     record : ndarray, optional
         The simulated record at ``fit.parameters`` when the caller has it.
+    with_estimation_error : bool
+        The cross-correlation's null covariance includes the fitted parameters' estimation
+        error (:func:`~emfc_ros.core.ident.metrics.input_correlation_test`'s
+        ``parameter_terms``, issue 28); False: noise only.
+    band_Hz : (float, float), optional
+        Frequencies of the coherence check (default up to Nyquist).
 
     Returns
     -------
@@ -645,12 +654,28 @@ def residual_tests(model: BalanceGreyboxModel, fit: Any, data: Sequence[Any],
         n = len(sec.outputs)
         tested = prewhitened(err, w, weighted_transient_basis(g, w))
         u = np.asarray(sec.inputs, dtype=float).reshape(n, -1)
-        cross = [input_correlation_test(tested, u[:, j], max_lag).fraction_inside
+        terms = None
+        if with_estimation_error and fit.covariance is not None:
+            d = model.output_derivatives(fit.parameters, fit.free_names, sec.inputs)
+            if d is not None:
+                q = weighted_transient_basis(g, w)
+                d = np.asarray(d, dtype=float).reshape(n, -1)
+                terms = (np.column_stack([prewhitened(d[:, i], w, q)
+                                          for i in range(d.shape[1])]), fit.covariance)
+        cross = [input_correlation_test(tested, u[:, j], max_lag, parameter_terms=terms)
                  for j in range(u.shape[1]) if np.ptp(u[:, j]) > 0.0]
+        white = whiteness_test(tested, max_lag)
         out.append(dataclasses.replace(
-            old, whiteness_fraction=whiteness_test(tested, max_lag).fraction_inside,
-            input_correlation_fraction=float(np.mean(cross)) if cross else float('nan'),
-            residual_tested='noise-weighted (noise model of the final residual)'))
+            old, whiteness_fraction=white.fraction_inside,
+            input_correlation_fraction=(float(np.mean([c.fraction_inside for c in cross]))
+                                        if cross else float('nan')),
+            residual_tested='noise-weighted (noise model of the final residual)',
+            whiteness_p_value=white.p_value,
+            input_correlation_p_value=(min(1.0, len(cross) * min(c.p_value for c in cross))
+                                       if cross else float('nan')),
+            coherence=residual_coherence(
+                tested, {'coil': u[:, 0], 'load_changer': u[:, 1]}, setting.sample_rate_Hz,
+                band_Hz or (0.0, 0.5 * setting.sample_rate_Hz))))
     return tuple(out)
 
 
@@ -965,7 +990,7 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
         on_fit(signals)
     if gcfg.noise_weighting and n_end >= 2:
         fit = dataclasses.replace(fit, sections=residual_tests(model, fit, data, setting,
-                                                               record=record))
+                                                               record=record, band_Hz=band_Hz))
     check(fit, specs, fd, verdict)
     budget = fit_budget(known, effects, fit.free_names, fit.systematic_sensitivity)
     derived = derived_quantities(model, fit, setting, budget)

@@ -499,12 +499,7 @@ class BalanceGreyboxModel:
             cached = self._derivatives if self._derivatives_key == key else None
         if cached is None:
             params, x0 = self.start(values)
-            if self._sensitivity is None:
-                self._sensitivity = LinearSensitivity(
-                    self.setpoints_V, self.sample_rate_Hz, self.load_mass_kg,
-                    self.load_changer_coupled, min_substeps(params, self.sample_rate_Hz),
-                    initial_setpoints_V=self.initial_setpoints_V)
-            cached = self._sensitivity.derivatives(
+            cached = self._linear(params).derivatives(
                 params, x0, names, values,
                 lambda v: with_values(self.params, v, self.load_mass_kg,
                                       self.load_changer_coupled), REST_POSITION)
@@ -558,15 +553,20 @@ class BalanceGreyboxModel:
                 out[:, k] = cached[first:first + n, model_names.index(name)]
         return out
 
-    def _record_input_derivatives(self, values: Mapping[str, float],
-                                  names: Sequence[str]) -> np.ndarray:
-        """:meth:`input_derivatives` of the model's inputs over the whole record."""
-        params, x0 = self.start(values)
+    def _linear(self, params: BalanceParameters) -> LinearSensitivity:
+        """The linearised model of the record (made once: its inputs are fixed)."""
         if self._sensitivity is None:
             self._sensitivity = LinearSensitivity(
                 self.setpoints_V, self.sample_rate_Hz, self.load_mass_kg,
                 self.load_changer_coupled, min_substeps(params, self.sample_rate_Hz),
                 initial_setpoints_V=self.initial_setpoints_V)
+        return self._sensitivity
+
+    def _record_input_derivatives(self, values: Mapping[str, float],
+                                  names: Sequence[str]) -> np.ndarray:
+        """:meth:`input_derivatives` of the model's inputs over the whole record."""
+        params, x0 = self.start(values)
+        self._linear(params)
         out = np.zeros((self.setpoints_V.shape[0], len(names)))
         mech_names = [m for m in names if m in params.mechanics.__dataclass_fields__]
         unknown = [m for m in names if m not in mech_names

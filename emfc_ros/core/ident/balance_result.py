@@ -379,6 +379,11 @@ SYSTEMATIC_NOTE = ('type B (GUM): the stated standard uncertainties of the input
                    '"Systematic uncertainties"')
 
 
+def _finite(value: float) -> Optional[float]:
+    """A float, or None for NaN (not tested)."""
+    return float(value) if math.isfinite(value) else None
+
+
 def _uncertainties(row: dict, statistical: float, systematic: float) -> dict:
     """A row with its systematic and combined standard uncertainty added."""
     row['systematic_standard_uncertainty'] = systematic if math.isfinite(systematic) else None
@@ -440,7 +445,16 @@ def greybox_dict(g: Optional[BalanceGreyboxResult]) -> Optional[dict]:
                       'rms_error_m': float(np.max(s.rms_error)),
                       'whiteness_fraction': s.whiteness_fraction,
                       'input_correlation_fraction': s.input_correlation_fraction,
-                      'residual_tested': s.residual_tested}
+                      'residual_tested': s.residual_tested,
+                      'whiteness_p_value': _finite(s.whiteness_p_value),
+                      'input_correlation_p_value': _finite(s.input_correlation_p_value),
+                      'coherence': None if s.coherence is None else {
+                          'input': s.coherence.input,
+                          'frequency_Hz': s.coherence.frequency_Hz,
+                          'squared_coherence': s.coherence.coherence,
+                          'p_value': s.coherence.p_value,
+                          'frequencies_tested': s.coherence.n_bins,
+                          'segments': s.coherence.n_segments}}
                      for s in fit.sections],
         'linearised_model': {
             'poles': [root_dict(p) for p in lin.poles()],

@@ -67,7 +67,7 @@ from dataclasses import dataclass
 import math
 import threading
 import time
-from typing import Callable, Dict, List, Mapping, Optional, Sequence, Tuple
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 from scipy import optimize
@@ -211,6 +211,14 @@ class SectionFit:
         spectrum (then the tests see that weighted, pre-whitened residual, with the noise
         transient projected out: what the fit treats as white), ``'raw'`` otherwise (the
         output error ``y - y_hat`` itself).
+    whiteness_p_value : float
+        Ljung-Box p-value of the autocorrelation (NaN when not tested this way).
+    input_correlation_p_value : float
+        p-value of the cross-correlation with the inputs, the smallest over the inputs times
+        their number (Bonferroni; NaN when not tested this way).
+    coherence : CoherencePeak or None
+        Where the residual is most coherent with an input
+        (:mod:`~emfc_ros.core.ident.residual_coherence`; None when not tested).
     """
 
     name: str
@@ -219,6 +227,9 @@ class SectionFit:
     input_correlation_fraction: float
     rms_error: np.ndarray
     residual_tested: str = 'raw'
+    whiteness_p_value: float = math.nan
+    input_correlation_p_value: float = math.nan
+    coherence: Optional[Any] = None
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,8 @@ Fit metrics of simulated against measured outputs, and residual correlation test
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
+from typing import Optional, Tuple
 
 import numpy as np
 from scipy import special
@@ -35,12 +37,20 @@ class CorrelationTest:
         Half-width of the band ``z / sqrt(N)``.
     fraction_inside : float
         Fraction of lags with ``|value| <= bound``.
+    p_value : float
+        Of the portmanteau statistic over all lags, chi-square distributed for a white
+        residual independent of a white input: Ljung-Box ``N (N + 2) sum r_k^2 / (N - k)``
+        with ``max_lag`` degrees of freedom for the whiteness test, ``r^T V^-1 r`` with
+        ``2 max_lag + 1`` for the cross-correlation (:func:`input_correlation_test`: ``V``
+        the lags' covariance under the null, for any input). Small: the
+        residual is not white, or depends on the input.
     """
 
     lags: np.ndarray
     values: np.ndarray
     bound: float
     fraction_inside: float
+    p_value: float = float('nan')
 
 
 def fit_percent(measured: np.ndarray, simulated: np.ndarray) -> np.ndarray:
@@ -154,14 +164,38 @@ def whiteness_test(residual: np.ndarray, max_lag: int = 25,
         raise IdentificationError('the residual is identically zero')
     values = r[1:] / r[0]
     bound = _band(e.size, confidence)
+    n = e.size
+    q = n * (n + 2.0) * float(np.sum(values ** 2 / (n - np.arange(1, max_lag + 1))))
     return CorrelationTest(np.arange(1, max_lag + 1), values, bound,
-                           float(np.mean(np.abs(values) <= bound)))
+                           float(np.mean(np.abs(values) <= bound)),
+                           float(special.chdtrc(max_lag, q)))
+
+
+#: Lags of the residual's own autocorrelation in the null covariance of the cross-correlation
+#: (Bartlett's formula; the tested residual is white, or nearly, at longer lags).
+BARTLETT_LAGS = 3
 
 
 def input_correlation_test(residual: np.ndarray, input: np.ndarray, max_lag: int = 25,
-                           confidence: float = 0.99) -> CorrelationTest:
+                           confidence: float = 0.99,
+                           parameter_terms: Optional[Tuple[np.ndarray, np.ndarray]] = None
+                           ) -> CorrelationTest:
     """
     Cross-correlation of residuals with an input at lags -max_lag..max_lag.
+
+    The p-value is of ``S = r^T V^-1 r``, chi-square with ``2 max_lag + 1`` degrees of
+    freedom when the residual is independent of the input. ``V`` is the covariance of ``r``
+    under that null. It has two parts. The noise's is Bartlett's formula,
+    ``V_tt' = (1 / N) sum_k rho_e(k) rho_u(k + t' - t)`` (``|k| <= BARTLETT_LAGS``). This
+    makes the test right for any input, a step's plateaus as well as a chirp; with a white
+    residual it is the input's own autocorrelation. The band ``z / sqrt(N)`` (and
+    ``fraction_inside``) is the usual plot of it: right only for a white input. The second
+    part is the estimate's, given by ``parameter_terms``. A model fitted to data carries the
+    estimation error of its parameters, ``J (theta_hat - theta)``, in every residual. A
+    section that sees a parameter much better than the data that fixed it then shows that
+    error correlated with its input, the right model included (issue 28: a coil-step section
+    correlated at every lag through c1's statistical error). This part is ``G Cov G^T``,
+    ``G`` the cross-correlation of the residual's derivatives with the input.
 
     Parameters
     ----------
@@ -171,12 +205,16 @@ def input_correlation_test(residual: np.ndarray, input: np.ndarray, max_lag: int
         Largest absolute lag [samples].
     confidence : float
         Two-sided confidence level of the band.
+    parameter_terms : (ndarray, ndarray), optional
+        ``(derivatives, covariance)``: the residual's derivatives by the fitted parameters,
+        shape (n, p), treated exactly as the residual was (e.g. pre-whitened), and the
+        parameters' covariance (p, p).
 
     Returns
     -------
     CorrelationTest
         Lags, normalised cross-correlation ``r_eu(tau)`` (``e`` lagging ``u`` for positive
-        tau), band and fraction inside.
+        tau), band, fraction inside and p-value.
 
     Raises
     ------
@@ -196,5 +234,39 @@ def input_correlation_test(residual: np.ndarray, input: np.ndarray, max_lag: int
         raise IdentificationError('residual or input is constant')
     values = correlation_at_lags(e, u, max_lag) / norm
     bound = _band(e.size, confidence)
+    d = None
+    if parameter_terms is not None:
+        d = np.asarray(parameter_terms[0], dtype=float).reshape(e.size, -1)
+        p_cov = np.asarray(parameter_terms[1], dtype=float)
+        if np.all(np.isfinite(p_cov)) and np.all(np.isfinite(d)):
+            d = d - d.mean(axis=0)
+        else:
+            d = None
+    # the noise's own autocorrelation: of the residual with the estimation error's
+    # directions removed (they would count twice)
+    noise = e if d is None else e - d @ np.linalg.lstsq(d, e, rcond=None)[0]
+    k_e = min(BARTLETT_LAGS, e.size - 2)
+    rho_e = correlation_at_lags(noise, noise, k_e)[k_e:] / float(noise @ noise)
+    rho_u = correlation_at_lags(u, u, 2 * max_lag + k_e)[2 * max_lag + k_e:] / float(u @ u)
+    lag = np.arange(values.size)
+    shift = lag[None, :] - lag[:, None]
+    cov = rho_e[0] * rho_u[np.abs(shift)]
+    for k in range(1, k_e + 1):
+        cov = cov + rho_e[k] * (rho_u[np.abs(shift + k)] + rho_u[np.abs(shift - k)])
+    cov = cov * float(noise @ noise) / float(e @ e) / e.size
+    if d is not None:
+        g = np.column_stack([correlation_at_lags(d[:, i], u, max_lag) / norm
+                             for i in range(d.shape[1])])
+        cov = cov + g @ p_cov @ g.T
+    # chi-square in the directions the covariance determines (a slowly varying input makes
+    # neighbouring lags nearly the same number)
+    vals, vecs = np.linalg.eigh(0.5 * (cov + cov.T))
+    good = vals > 1e-9 * max(float(vals.max()), 0.0)
+    if not np.any(good):
+        stat, dof = math.nan, values.size
+    else:
+        proj = vecs[:, good].T @ values
+        stat, dof = float(np.sum(proj ** 2 / vals[good])), int(np.count_nonzero(good))
     return CorrelationTest(np.arange(-max_lag, max_lag + 1), values, bound,
-                           float(np.mean(np.abs(values) <= bound)))
+                           float(np.mean(np.abs(values) <= bound)),
+                           float(special.chdtrc(dof, stat)))

@@ -130,14 +130,22 @@ def summary_markdown(result: Any, plots: Sequence[str] = (),
                          f'{"derived" if start is None else f"{start:.6g}"} | {p["unit"]} |')
         lines += systematic_lines(g)
         lines += ['', '| section | fit [%] | rms error [nm] | residual white [% of lags] | '
-                  'residual-input uncorrelated [% of lags] |', '|---|---|---|---|---|']
+                  'residual-input uncorrelated [% of lags] | p white | p uncorrelated | '
+                  'most coherent with an input (p) |', '|---|---|---|---|---|---|---|---|']
         for s in g['sections']:
             white = s['whiteness_fraction']
             cross = s['input_correlation_fraction']
+            pw, pc = s.get('whiteness_p_value'), s.get('input_correlation_p_value')
+            coh = s.get('coherence')
             lines.append(f'| {s["name"]} | {s["fit_percent"]:.2f} | '
                          f'{1e9 * s["rms_error_m"]:.3g} | '
                          f'{"n/a" if white is None else f"{100 * white:.0f} %"} | '
-                         f'{"n/a" if cross is None else f"{100 * cross:.0f} %"} |')
+                         f'{"n/a" if cross is None else f"{100 * cross:.0f} %"} | '
+                         f'{"n/a" if pw is None else f"{pw:.2g}"} | '
+                         f'{"n/a" if pc is None else f"{pc:.2g}"} | '
+                         + ('n/a' if not coh else
+                            f'{coh["input"]} at {coh["frequency_Hz"]:.4g} Hz, '
+                            f'{coh["squared_coherence"]:.2f} ({coh["p_value"]:.2g})') + ' |')
         lines += [''] + residual_test_note(g['sections'])
         lin = g['linearised_model']
         poles = ', '.join(f'{p["frequency_Hz"]:.5g} Hz (zeta {p["damping_ratio"]:.4g})'
@@ -184,10 +192,16 @@ def residual_test_note(sections: Sequence[Mapping[str, Any]]) -> list:
                 '% of the frequency; the transient at the section ends projected out), which '
                 'is what the noise-weighted fit treats as white. Each column is the share of '
                 'the lags (autocorrelation 1..25, cross-correlation with each input -25..25) '
-                'inside the 99 % band 2.576/sqrt(N): about 99 % for a right model. A low '
-                '"uncorrelated" share means the model misses part of the input\'s effect; the '
-                'raw output error is process noise ringing at the low mode, never white, and '
-                'is not tested.', '']
+                'inside the 99 % band 2.576/sqrt(N) (right only for a white input: a step '
+                "input's plateaus put a right model's lags outside it). The verdict uses the "
+                'p-values: Ljung-Box for the whiteness, and for the cross-correlation the '
+                'chi-square statistic with the null covariance of the lags for the actual '
+                "input (Bartlett) and the fitted parameters' estimation error; and the "
+                'squared coherence with each input per frequency (Hann segments, Bonferroni '
+                'over the frequencies), which names the frequency of a dynamic the model '
+                'lacks. A section warns below 0.01 divided by the number of sections. The raw '
+                'output error is process noise ringing at the low mode, never white, and is '
+                'not tested.', '']
     return ['The residual columns test the raw output error y - y_hat (the fit was not '
             'noise-weighted): the share of the lags (autocorrelation 1..25, cross-correlation '
             'with each input -25..25) inside the 99 % band 2.576/sqrt(N). On the balance the '
