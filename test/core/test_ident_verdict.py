@@ -100,17 +100,28 @@ def test_poorly_determined_free_parameters_are_named():
 
 
 def test_residual_tests_of_a_prewhitened_residual_are_judged():
+    """By their p-values against 0.01 over the tested sections; raw residuals not at all."""
     from emfc_ros.core.ident.balance_verdict import check
     from emfc_ros.core.ident.greybox import SectionFit
-    good = SectionFit('a', np.array([99.9]), 1.0, 1.0, np.array([1e-9]),
-                      'noise-weighted (noise model of the final residual)')
-    bad = SectionFit('b', np.array([99.9]), 0.96, 0.2, np.array([1e-9]),
-                     'noise-weighted (noise model of the final residual)')
+    from emfc_ros.core.ident.residual_coherence import CoherencePeak
+    weighted = 'noise-weighted (noise model of the final residual)'
+    quiet = CoherencePeak('coil', 120.0, 0.05, 0.6, 150, 97)
+    good = SectionFit('a', np.array([99.9]), 1.0, 1.0, np.array([1e-9]), weighted,
+                      0.5, 0.4, quiet)
+    # 20 % of the lags inside the band, p 1e-4: dependent (level 0.01 / 3 sections)
+    bad = SectionFit('b', np.array([99.9]), 0.96, 0.2, np.array([1e-9]), weighted,
+                     0.5, 1e-4, quiet)
+    # p 0.004 is not below 0.01 / 3 = 0.0033: no warning, whatever the share of lags
+    edge = SectionFit('d', np.array([99.9]), 0.5, 0.5, np.array([1e-9]), weighted,
+                      0.004, 0.004, CoherencePeak('load_changer', 333.0, 0.4, 1e-9, 150, 97))
     raw = SectionFit('c', np.array([99.9]), 0.0, 0.0, np.array([1e-9]), 'raw')
-    fit = _fit({'c1_Nm_per_rad': 0.1}, {'c1_Nm_per_rad': 1e-5}, (good, bad, raw))
+    fit = _fit({'c1_Nm_per_rad': 0.1}, {'c1_Nm_per_rad': 1e-5}, (good, bad, edge, raw))
     fit = replace(fit, initial={'c1_Nm_per_rad': 0.09})
     verdict = Verdict()
     check(fit, [], None, verdict)
-    assert len(verdict.warnings) == 1, verdict.warnings
-    assert "section 'b'" in verdict.warnings[0] and 'uncorrelated with the inputs' in \
-        verdict.warnings[0] and '20 %' in verdict.warnings[0]
+    assert len(verdict.warnings) == 2, verdict.warnings
+    assert "section 'b'" in verdict.warnings[0] and 'depends on the inputs' in \
+        verdict.warnings[0] and '20 %' in verdict.warnings[0] and 'p = 0.0001' in \
+        verdict.warnings[0]
+    assert "section 'd'" in verdict.warnings[1] and 'load_changer input at 333 Hz' in \
+        verdict.warnings[1] and 'unmodelled mode' in verdict.warnings[1]

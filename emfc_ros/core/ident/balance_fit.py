@@ -820,7 +820,8 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
                 band_Hz: Tuple[float, float], hold: str, report: Progress,
                 on_fit: Optional[Callable[[Any], None]] = None,
                 executor: Optional[Offload] = None,
-                on_model: Optional[Callable[[Any, Dict[str, float]], None]] = None
+                on_model: Optional[Callable[[Any, Dict[str, float]], None]] = None,
+                identified_amplifiers: Optional[Mapping[str, float]] = None
                 ) -> Tuple[Optional[BalanceGreyboxResult], Verdict]:
     """
     The whole grey-box identification (see the module docstring).
@@ -857,6 +858,10 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
         the fitted mechanics linearised at rest and the fit's parameter values, as the
         result will hold them if the check passes (usually; else the result differs and
         ``on_fit`` says so), e.g. to draw the model's Bode diagrams meanwhile.
+    identified_amplifiers : mapping of str to float, optional
+        Amplifiers whose curve in ``setting.balance`` was identified from a staircase, with
+        the relative standard error of its gain (for the systematic uncertainty,
+        :func:`~emfc_ros.core.ident.systematic.components`).
 
     Returns
     -------
@@ -953,7 +958,7 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
         on_model(linearised(parameters)[1], parameters)
 
     # the known inputs' stated uncertainties, propagated by the fit (systematic.py)
-    known = components(setting.balance, [s.name for s in specs])
+    known = components(setting.balance, [s.name for s in specs], identified_amplifiers)
     effects = fit_effects(known)
     try:
         fit = fit_greybox(simulate, data, specs, method=gcfg.method, options=options,
@@ -974,7 +979,8 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
             # A clearly better optimum: the time-domain fit started from the wrong one. The
             # whole grey-box again, in line, as without an executor.
             return fit_balance(setting, channels, sections, frf_jobs, modes, anti_resonance,
-                               gcfg, band_Hz, hold, report, on_fit, on_model=on_model)
+                               gcfg, band_Hz, hold, report, on_fit, on_model=on_model,
+                               identified_amplifiers=identified_amplifiers)
         verdict.failures[probe_at:probe_at] = failures
     fitted, lin = linearised(fit.parameters)
     # The record's initial state estimated (a balance not at rest under the first setpoints

@@ -102,6 +102,12 @@ class BalanceGreyboxResult:
     systematic : SystematicBudget or None
         Every identified number's change per known input (type B,
         :mod:`~emfc_ros.core.ident.systematic`).
+    balance : BalanceParameters or None
+        The balance the fit used (its characteristics; None: the configuration's).
+    characteristics : dict of str to str
+        Per characteristic the fit took from elsewhere than the file (an amplifier curve
+        identified from its staircase), where it came from and how it compares with the
+        file's (:mod:`~emfc_ros.core.ident.unit_characteristics`).
     """
 
     fit: GreyboxResult
@@ -119,6 +125,8 @@ class BalanceGreyboxResult:
     inputs_V: Dict[str, np.ndarray] = field(default_factory=dict)
     initial_state: Optional[Any] = None
     systematic: Optional[SystematicBudget] = None
+    balance: Optional[BalanceParameters] = None
+    characteristics: Dict[str, str] = field(default_factory=dict)
 
     def systematic_uncertainty(self, name: str) -> float:
         """
@@ -305,15 +313,20 @@ def parameter_table(g: BalanceGreyboxResult, balance: Optional[BalanceParameters
                      'standard_uncertainty': None,
                      'note': "whether the load changer's moving mass rode on the pan"})
     if balance is not None:
+        used = g.balance if g.balance is not None else balance
         for part, key, unit, role in CHARACTERISTICS:
+            identified = g.characteristics.get(part, '').startswith('identified')
             rows.append({'name': f'{part}.{key}',
-                         'value': [float(c) for c in getattr(getattr(balance, part), key)],
-                         'unit': unit, 'status': 'fixed',
-                         'source': characteristic_source(balance, part),
+                         'value': [float(c) for c in getattr(getattr(used, part), key)],
+                         'unit': unit,
+                         'status': 'identified (static)' if identified else 'fixed',
+                         'source': (g.characteristics.get(part)
+                                    or characteristic_source(balance, part)),
                          'standard_uncertainty': None,
                          'stated_relative_standard_uncertainty': float(getattr(
                              balance.uncertainties, STATED_GAIN[part])),
-                         'note': f'fixed on purpose: converts {role}'})
+                         'note': (f'identified from its staircase: converts {role}'
+                                  if identified else f'fixed on purpose: converts {role}')})
     return rows
 
 

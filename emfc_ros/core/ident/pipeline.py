@@ -45,6 +45,7 @@ from emfc_ros.core.ident.pipeline_config import IdentificationConfig
 from emfc_ros.core.ident.plant import PLANT_KEYS, PlantConfigurationError
 from emfc_ros.core.ident.static_fit import fit_polynomial, PolynomialFit, with_std_floor
 from emfc_ros.core.ident.tf_fit import OrderSelection, select_order
+from emfc_ros.core.ident.unit_characteristics import unit_amplifiers
 
 Progress = Callable[[str, float, str], None]
 
@@ -758,7 +759,14 @@ def _greybox_step(result: IdentificationResult, channels: Mapping[str, np.ndarra
             f'frf.pan_sections, frf.two_input_sections: the start and the identifiability '
             f'analysis do not see them (the time-domain fit does)')
     modes, anti = modal_features(result)
-    setting = Setting(cfg.balance.with_mechanics(**gcfg.initial), cfg.load_mass_kg,
+    balance, gain_errors, characteristics = cfg.balance, {}, {}
+    if gcfg.amplifiers_from_static and result.static is not None and result.static.fits:
+        spans_V = {ch: max(float(np.max(np.abs(channels[ch][s.slice]))) for s in chosen)
+                   for ch in ('coil_setpoint_V', 'load_changer_setpoint_V')}
+        balance, gain_errors, characteristics, warned = unit_amplifiers(
+            cfg.balance, result.static.fits, result.static.points, spans_V)
+        result.warnings.extend(warned)
+    setting = Setting(balance.with_mechanics(**gcfg.initial), cfg.load_mass_kg,
                       cfg.load_changer_coupled, result.sample_rate_Hz)
     responses: Dict[str, np.ndarray] = {}
 
@@ -795,7 +803,11 @@ def _greybox_step(result: IdentificationResult, channels: Mapping[str, np.ndarra
         setting, channels, [(s.name, s.first_sample_index, s.n_samples) for s in chosen],
         jobs, modes, anti, gcfg, (cfg.frf.frequency_min_Hz, cfg.frf.frequency_max_Hz),
         cfg.frf.hold_compensation, report, on_fit=fitted, executor=executor,
-        on_model=model_ready if done is not None else None)
+        on_model=model_ready if done is not None else None,
+        identified_amplifiers=gain_errors)
+    if out is not None:
+        out.balance = setting.balance
+        out.characteristics = characteristics
     result.warnings.extend(verdict.warnings)
     result.failures.extend(verdict.failures)
     if out is None:

@@ -166,6 +166,10 @@ class GreyboxConfig:
         sample [V] (default 0 V: the outputs of an idle bridge, generator or simulated
         balance); the simulation starts at rest there and applies the first setpoints at
         sample 0. None: at rest under the first setpoints (before issue 28).
+    amplifiers_from_static : bool
+        The grey-box takes the amplifier curves the static step identified from the
+        staircases (current monitors) instead of the balance file's (issue 28: a unit's own
+        characteristics); the file's are checked against them. False: the file's.
     """
 
     enabled: bool = True
@@ -181,6 +185,7 @@ class GreyboxConfig:
     mass_relative_uncertainty: float = 0.05
     pattern_search_initial_mesh_size: float = 0.0625
     initial_setpoints_V: Optional[Tuple[float, float]] = (0.0, 0.0)
+    amplifiers_from_static: bool = True
 
 
 @dataclass(frozen=True)
@@ -390,4 +395,6 @@ def _greybox(cfg: Mapping[str, Any], path: str) -> GreyboxConfig:
             cfg, 'pattern_search_initial_mesh_size', path,
             default=d.pattern_search_initial_mesh_size, minimum=0.0, maximum=100.0,
             min_exclusive=True),
-        initial_setpoints_V=start)
+        initial_setpoints_V=start,
+        amplifiers_from_static=get_bool(cfg, 'amplifiers_from_static', path,
+                                        default=d.amplifiers_from_static))

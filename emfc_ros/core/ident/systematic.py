@@ -69,7 +69,17 @@ class Component:
     unit: str
 
 
-def components(balance: BalanceParameters, free: Sequence[str] = ()) -> List[Component]:
+#: Per amplifier: its force effect and the stated gains a staircase identification replaces.
+AMPLIFIERS = {
+    'coil_amplifier': ('coil_force_scale',
+                       ('coil_amplifier_gain_relative', 'coil_dac_gain_relative')),
+    'load_changer_amplifier': ('pan_force_scale', ('load_changer_amplifier_gain_relative',
+                                                   'load_changer_dac_gain_relative')),
+}
+
+
+def components(balance: BalanceParameters, free: Sequence[str] = (),
+               identified: Optional[Mapping[str, float]] = None) -> List[Component]:
     """
     The independent known inputs with a non-zero stated uncertainty.
 
@@ -79,18 +89,26 @@ def components(balance: BalanceParameters, free: Sequence[str] = ()) -> List[Com
         The balance (its ``uncertainties`` and the values of relative mechanical inputs).
     free : sequence of str
         Parameters the fit identifies (a mechanical input among them is not a known input).
+    identified : mapping of str to float, optional
+        Amplifiers whose curve was identified from a staircase (``'coil_amplifier'``,
+        ``'load_changer_amplifier'``) and the relative standard error of that curve's gain:
+        their stated gain and DAC gain are replaced by one input ``<amplifier>_from_staircase``
+        combining the current monitor's stated gain and that error (the DAC's error is in the
+        measured curve).
 
     Returns
     -------
     list of Component
-        In the order of the ``uncertainties`` section.
+        In the order of the ``uncertainties`` section, the identified amplifiers last.
     """
     stated: StatedUncertainties = balance.uncertainties
+    identified = dict(identified or {})
+    replaced = {key for part in identified for key in AMPLIFIERS[part][1]}
     out = []
     for f in fields(stated):
         u = float(getattr(stated, f.name))
         effects, unit = EFFECTS[f.name]
-        if u <= 0.0:
+        if u <= 0.0 or f.name in replaced:
             continue
         for effect in effects:
             if effect in free:
@@ -103,6 +121,11 @@ def components(balance: BalanceParameters, free: Sequence[str] = ()) -> List[Com
                 step = u
             name = f.name if len(effects) == 1 else effect
             out.append(Component(name, f.name, effect, step, u, unit))
+    for part, error in identified.items():
+        u = math.hypot(float(stated.current_monitor_gain_relative), float(error))
+        if u > 0.0:
+            out.append(Component(f'{part}_from_staircase', 'current_monitor_gain_relative',
+                                 AMPLIFIERS[part][0], u, u, '1'))
     return out
 
 

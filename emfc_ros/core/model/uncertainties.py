@@ -63,6 +63,10 @@ class StatedUncertainties:
     load_mass_relative : float
         The pan load the identification is told (1e-4: mass pieces of a weighing set, far
         better in practice; a wrong load is a blunder the mass check is there for).
+    current_monitor_gain_relative : float
+        Scale of an amplifier's current monitor with its ADC channel (0.002: a monitor shunt
+        and a 16-bit converter). Used instead of the amplifier's and its DAC's gain when the
+        amplifier curve is identified from a staircase.
     """
 
     sensor_gain_relative: float = _u(0.02, 1.0)
@@ -76,6 +80,7 @@ class StatedUncertainties:
     lever_length_m: float = _u(1.0e-4, 0.1)
     load_changer_mass_relative: float = _u(0.05, 1.0)
     load_mass_relative: float = _u(1.0e-4, 1.0)
+    current_monitor_gain_relative: float = _u(0.002, 1.0)
 
 
 #: What each stated uncertainty acts on, for the propagation: the effect it shares with others
@@ -95,6 +100,7 @@ EFFECTS: Dict[str, Tuple[Tuple[str, ...], str]] = {
     'lever_length_m': (('l1_m', 'l2_m', 'l3_m'), 'm'),
     'load_changer_mass_relative': (('load_changer_mass_kg',), '1'),
     'load_mass_relative': (('load_mass',), '1'),
+    'current_monitor_gain_relative': ((), '1'),      # identified amplifiers only
 }
 
 

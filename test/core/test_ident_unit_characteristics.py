@@ -1,0 +1,86 @@
+"""
+A unit's own amplifier curves in the grey-box (issue 28 item 2, first part).
+
+A unit whose amplifiers differ by a few percent from the file's curves was refused (right,
+but no use to its owner). The static step identifies the curves from the staircases; the
+grey-box now takes them (``greybox.amplifiers_from_static``, default on), and the report says
+for each characteristic where it came from and how far the file's is from it.
+"""
+
+import dataclasses
+
+import pytest
+import yaml
+
+from emfc_ros.core.ident.offnominal import draw_balance, record_draw, TEST_SEEDS, \
+    truth_values
+from emfc_ros.core.ident.pipeline import identify
+from emfc_ros.core.ident.pipeline_config import IdentificationConfig
+from emfc_ros.core.model.peripherals import Amplifier
+from emfc_ros.core.paths import config_file
+from emfc_ros.core.run_plan import merge_experiments
+from emfc_ros.core.signals import experiment_from_config, find_experiment_mapping
+
+MECHANICS = ('c1_Nm_per_rad', 'c2_Nm_per_rad', 'd1_Nms_per_rad', 'd2_Nms_per_rad')
+
+
+def trajectory_with_staircases():
+    """The shipped trajectory followed by the static staircases, as the main job plays them."""
+    files = ('identification_trajectory.yaml', 'static_characteristics.yaml')
+    maps = [find_experiment_mapping(yaml.safe_load(config_file(f).read_text()))
+            for f in files]
+    return experiment_from_config({'experiment': merge_experiments(maps, list(files))})
+
+
+@pytest.fixture(scope='module')
+def unit():
+    """A drawn balance whose coil amplifier is 3 % strong and load changer's 2 % weak."""
+    seed = TEST_SEEDS[0]
+    p = draw_balance(seed)
+    p = dataclasses.replace(
+        p, coil_amplifier=Amplifier(tuple(1.03 * c for c in p.coil_amplifier.coeffs_A_per_V_pow)),
+        load_changer_amplifier=Amplifier(tuple(
+            0.98 * c for c in p.load_changer_amplifier.coeffs_A_per_V_pow)))
+    return record_draw(p, seed, experiment=trajectory_with_staircases(), draw_seed=seed)
+
+
+def test_the_option_is_on_by_default_and_can_be_switched_off():
+    assert IdentificationConfig.from_mapping({}).greybox.amplifiers_from_static is True
+    off = IdentificationConfig.from_mapping({'greybox': {'amplifiers_from_static': False}})
+    assert off.greybox.amplifiers_from_static is False
+
+
+@pytest.mark.slow
+def test_a_unit_with_its_own_amplifiers_is_identified(unit):
+    truth = truth_values(unit.truth)
+    res = identify(unit.recording, unit.section_table, unit.options())
+    assert res.success, (res.failures, res.warnings)
+    got = res.greybox.fit.parameters
+    for name in MECHANICS:
+        limit = 0.02 if name.startswith('c') else 0.10
+        assert abs(got[name] / truth[name] - 1.0) <= limit, name
+    # the curves the fit used are the unit's, and the report says so, with the comparison
+    used = res.greybox.balance
+    assert used.coil_amplifier.coeffs_A_per_V_pow[1] == pytest.approx(0.0103, rel=2e-3)
+    assert used.load_changer_amplifier.coeffs_A_per_V_pow[1] == pytest.approx(0.0098, rel=2e-3)
+    rows = {r['name']: r for r in res.to_dict()['model_parameters']}
+    coil = rows['coil_amplifier.coeffs_A_per_V_pow']
+    assert coil['status'] == 'identified (static)'
+    assert coil['source'].startswith('identified (static staircase')
+    assert "the file's gain 0.01 A/V is -2.9" in coil['source']
+    assert rows['motor.coeffs_N_per_A_per_mm_pow']['status'] == 'fixed'
+    # the amplifier's stated gain is replaced by the staircase's own uncertainty
+    inputs = {i['name'] for i in res.to_dict()['greybox']['systematic']['inputs']}
+    assert 'coil_amplifier_from_staircase' in inputs
+    assert 'coil_amplifier_gain_relative' not in inputs
+    assert 'coil_dac_gain_relative' not in inputs
+
+
+@pytest.mark.slow
+def test_with_the_files_curves_the_same_unit_is_refused(unit):
+    res = identify(unit.recording, unit.section_table,
+                   unit.options(amplifiers_from_static=False))
+    assert not res.success
+    assert res.greybox.characteristics == {}
+    rows = {r['name']: r for r in res.to_dict()['model_parameters']}
+    assert rows['coil_amplifier.coeffs_A_per_V_pow']['status'] == 'fixed'
