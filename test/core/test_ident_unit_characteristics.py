@@ -84,3 +84,22 @@ def test_with_the_files_curves_the_same_unit_is_refused(unit):
     assert res.greybox.characteristics == {}
     rows = {r['name']: r for r in res.to_dict()['model_parameters']}
     assert rows['coil_amplifier.coeffs_A_per_V_pow']['status'] == 'fixed'
+
+
+def test_a_drawn_unit_keeps_the_drawn_mechanics_and_draws_its_characteristics():
+    from emfc_ros.core.ident.offnominal import draw_unit
+    from emfc_ros.core.model.parameters import BalanceParameters
+    seed = TEST_SEEDS[1]
+    unit = draw_unit(seed, force_constants=True)
+    assert unit.params.mechanics == draw_balance(seed).mechanics
+    assert unit == draw_unit(seed, force_constants=True)             # reproducible
+    nominal = BalanceParameters()
+    for key in ('coil_amplifier_gain', 'load_changer_amplifier_gain', 'motor_coefficient',
+                'load_changer_force'):
+        assert 0.97 <= unit.factors[key] <= 1.03 and unit.factors[key] != 1.0, key
+    assert unit.params.motor.coeffs_N_per_A_per_mm_pow[0] == pytest.approx(
+        nominal.motor.coeffs_N_per_A_per_mm_pow[0] * unit.factors['motor_coefficient'])
+    assert abs(unit.factors['coil_amplifier_offset_A']) <= 2e-5
+    assert unit.sensor_gain == unit.factors['sensor_gain'] != 1.0
+    # without force constants they stay the file's
+    assert draw_unit(seed).params.motor == nominal.motor

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Dict, Optional, Tuple, Union
+from typing import Any, Dict, Mapping, Optional, Tuple, Union
 
 import numpy as np
 
@@ -98,6 +98,83 @@ def draw_balance(seed: int, spread: float = 0.10,
     factors = rng.uniform(1.0 - spread, 1.0 + spread, size=len(DRAWN_PARAMETERS))
     return base.with_mechanics(**{name: float(getattr(base.mechanics, name) * f)
                                   for name, f in zip(DRAWN_PARAMETERS, factors)})
+
+
+@dataclass(frozen=True)
+class UnitDraw:
+    """
+    A drawn unit: mechanics and characteristics off the type's, and its sensor's gain error.
+
+    Attributes
+    ----------
+    params : BalanceParameters
+        The unit as the simulator plays it (amplifier curves, force constants drawn).
+    sensor_gain : float
+        Factor on the recorded position (:func:`with_position_gain`): the unit's sensor
+        against the file's characteristic.
+    factors : dict of str to float
+        What was drawn, by name (gains and force constants as factors on the file's, the
+        amplifier offsets in A).
+    """
+
+    params: BalanceParameters
+    sensor_gain: float
+    factors: Dict[str, float]
+
+
+def draw_unit(seed: int, spread: float = 0.10, characteristic_spread: float = 0.03,
+              force_constants: bool = False, sensor_gain_relative: float = 0.02) -> UnitDraw:
+    """
+    Draw a unit of the balance type: :func:`draw_balance` plus its own characteristics.
+
+    On top of the drawn mechanics: each amplifier's gain a factor uniform in ``1 +/-
+    characteristic_spread`` and its offset uniform in +/-20 uA; with ``force_constants`` the
+    motor's and the load changer's force constants each a factor in the same range; the
+    sensor's gain normal with standard deviation ``sensor_gain_relative`` (the stated
+    uncertainty of the file's characteristic). A second generator
+    (``default_rng([seed, 28])``) draws them, so the mechanics are those of
+    :func:`draw_balance` with the same seed.
+
+    Parameters
+    ----------
+    seed : int
+        Draw seed (:data:`BENCH_SEEDS` for the benchmark, :data:`TEST_SEEDS` for tests).
+    spread : float
+        Of the mechanics (:func:`draw_balance`).
+    characteristic_spread : float
+        Relative half-width of the gains and force constants.
+    force_constants : bool
+        Draw the force constants too (the grey-box does not identify their ratio yet).
+    sensor_gain_relative : float
+        Standard deviation of the sensor's gain error.
+
+    Returns
+    -------
+    UnitDraw
+        The unit, its sensor gain and what was drawn.
+    """
+    from emfc_ros.core.model.peripherals import Amplifier, LoadChanger, MotorCoefficient
+
+    params = draw_balance(seed, spread)
+    rng = np.random.default_rng([seed, 28])
+    factors: Dict[str, float] = {}
+    for part in ('coil_amplifier', 'load_changer_amplifier'):
+        gain = float(rng.uniform(1.0 - characteristic_spread, 1.0 + characteristic_spread))
+        offset = float(rng.uniform(-2.0e-5, 2.0e-5))
+        coeffs = [c * gain for c in getattr(params, part).coeffs_A_per_V_pow]
+        coeffs[0] += offset
+        params = replace(params, **{part: Amplifier(tuple(coeffs))})
+        factors[f'{part}_gain'], factors[f'{part}_offset_A'] = gain, offset
+    if force_constants:
+        k = float(rng.uniform(1.0 - characteristic_spread, 1.0 + characteristic_spread))
+        f = float(rng.uniform(1.0 - characteristic_spread, 1.0 + characteristic_spread))
+        params = replace(params, motor=MotorCoefficient(tuple(
+            c * k for c in params.motor.coeffs_N_per_A_per_mm_pow)),
+            load_changer=LoadChanger(tuple(c * f for c in params.load_changer.coeffs_N_per_A_pow)))
+        factors['motor_coefficient'], factors['load_changer_force'] = k, f
+    gain = 1.0 + float(sensor_gain_relative) * float(rng.standard_normal())
+    factors['sensor_gain'] = gain
+    return UnitDraw(params, gain, factors)
 
 
 def truth_values(params: BalanceParameters) -> Dict[str, float]:
@@ -301,6 +378,46 @@ def default_experiment() -> Experiment:
         return load_experiment_file(root)
     from emfc_ros.core.paths import config_file
     return load_experiment_file(config_file(_TRAJECTORY))
+
+
+def unit_experiment(first_section: Optional[Mapping[str, Any]] = None) -> Experiment:
+    """
+    The shipped trajectory followed by the static staircases, as the main job plays them.
+
+    Parameters
+    ----------
+    first_section : mapping, optional
+        ``{'name': ..., 'spec': ...}``: a user's section in place of the first one (e.g. a
+        PRBS on the coil).
+
+    Returns
+    -------
+    Experiment
+        ``identification_trajectory.yaml`` then ``static_characteristics.yaml``.
+    """
+    import copy
+
+    import yaml
+
+    from emfc_ros.core.paths import config_file
+    from emfc_ros.core.run_plan import merge_experiments
+    from emfc_ros.core.signals import experiment_from_config, find_experiment_mapping
+
+    files = (_TRAJECTORY, 'static_characteristics.yaml')
+    maps = [copy.deepcopy(find_experiment_mapping(yaml.safe_load(config_file(f).read_text())))
+            for f in files]
+    if first_section is not None:
+        old = maps[0]['sections'][0]
+        maps[0]['sections'][0] = first_section['name']
+        del maps[0]['section'][old]
+        maps[0]['section'][first_section['name']] = first_section['spec']
+    return experiment_from_config({'experiment': merge_experiments(maps, list(files))})
+
+
+#: A user's first section: a PRBS on the coil, +/-2.5 mV (the chirp's amplitude), 0.5 ms bits,
+#: starting at +2.5 mV where the balance rested at 0 V (issue 28 item 3).
+PRBS_SECTION = {'name': 'coil_prbs', 'spec': {'duration_s': 10.0, 'coil': {'signals': {'p': {
+    'type': 'prbs', 'order': 14, 'hold_samples': 5, 'low_V': -0.0025, 'high_V': 0.0025}}}}}
 
 
 def record_draw(params: BalanceParameters, seed: int, *, experiment: Optional[Experiment] = None,
