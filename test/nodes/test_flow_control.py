@@ -176,9 +176,13 @@ def test_the_owner_plant_waits_for_a_stalled_recorder_and_says_so(
     recorder_diag = Diagnostics(feeder, 'recorder')
     for node in (plant, feeder):
         executor.add_node(node)
+    # The recorder matched on the plant's writer itself, not only in the graph: stopped
+    # before the writer matched it, it was not waited for (every wait returned at once, the
+    # recorder took the blocks from the writer's history later; a CI run saw it).
+    measurements = plant._pub['measurements']
     assert ros_harness.spin_until(
         executor, lambda: pub.get_subscription_count() >= 1
-        and plant.count_subscribers('/flow/measurements') >= 1, TIMEOUT_S), proc.output()
+        and measurements.get_subscription_count() >= 1, TIMEOUT_S), proc.output()
     hold = plant._sim.hold_setpoints_V[:, None]
     n_blocks = 100
     os.kill(proc.pid, signal.SIGSTOP)
