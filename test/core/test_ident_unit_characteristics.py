@@ -103,3 +103,36 @@ def test_a_drawn_unit_keeps_the_drawn_mechanics_and_draws_its_characteristics():
     assert unit.sensor_gain == unit.factors['sensor_gain'] != 1.0
     # without force constants they stay the file's
     assert draw_unit(seed).params.motor == nominal.motor
+
+
+@pytest.mark.slow
+def test_the_ratio_of_the_force_constants_is_identified_when_asked():
+    """``greybox.free`` + ``load_changer_force_scale``: the data give the actuators' ratio."""
+    from emfc_ros.core.ident.balance_names import DEFAULT_FREE, PAN_FORCE_SCALE
+    from emfc_ros.core.ident.offnominal import draw_unit, unit_experiment
+    seed = TEST_SEEDS[2]
+    unit = draw_unit(seed, force_constants=True, sensor_gain_relative=0.0)
+    rec = record_draw(unit.params, seed, experiment=unit_experiment(), draw_seed=seed)
+    res = identify(rec.recording, rec.section_table,
+                   rec.options(free=list(DEFAULT_FREE) + [PAN_FORCE_SCALE]))
+    assert res.success, (res.failures, res.warnings)
+    g = res.greybox
+    ratio = unit.factors['load_changer_force'] / unit.factors['motor_coefficient']
+    assert g.fit.parameters[PAN_FORCE_SCALE] == pytest.approx(ratio, rel=1e-3)
+    # what is left is the common scale of the coil's force constant (a stated input)
+    truth = truth_values(rec.truth)
+    common = 1.0 / unit.factors['motor_coefficient']
+    for name in MECHANICS:
+        assert got_ratio(g, truth, name) == pytest.approx(common, rel=0.01), name
+    assert g.derived['low_mode_frequency_Hz'].value == pytest.approx(rec.modal.low_mode_Hz,
+                                                                     rel=5e-4)
+    rows = {r['name']: r for r in res.to_dict()['model_parameters']}
+    assert rows['load_changer.coeffs_N_per_A_pow']['status'] == 'identified (time-domain fit)'
+    inputs = {i['name'] for i in res.to_dict()['greybox']['systematic']['inputs']}
+    assert 'load_changer_force_relative' not in inputs
+    assert 'motor_coefficient_relative' in inputs
+
+
+def got_ratio(g, truth, name):
+    """Identified over true value of a parameter."""
+    return g.fit.parameters[name] / truth[name]

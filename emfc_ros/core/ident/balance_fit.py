@@ -47,7 +47,8 @@ from emfc_ros.core.ident import balance_frf
 from emfc_ros.core.ident.balance_derived import derived_quantities
 from emfc_ros.core.ident.balance_greybox import (BalanceGreyboxModel, MASS_COORDINATES,
                                                  mass_matrix_entries, MASS_MATRIX_NAMES,
-                                                 REST_POSITION, unit_of, with_values)
+                                                 PAN_FORCE_SCALE, REST_POSITION, unit_of,
+                                                 with_values)
 from emfc_ros.core.ident.balance_result import (BalanceGreyboxResult, characteristic_source,
                                                 Setting, Verdict)
 from emfc_ros.core.ident.balance_verdict import (check, check_masses, check_uncertainties,
@@ -109,6 +110,8 @@ def configured_value(setting: 'Setting', name: str) -> float:
         entries = mass_matrix_entries(setting.balance.mechanics, setting.load_mass_kg,
                                       setting.load_changer_coupled)
         return float(entries[MASS_MATRIX_NAMES.index(name)])
+    if name == PAN_FORCE_SCALE:
+        return 1.0                      # the file's load-changer characteristic
     return float(getattr(setting.balance.mechanics, name))
 
 

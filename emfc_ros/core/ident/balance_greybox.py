@@ -31,11 +31,13 @@ from typing import Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
-from emfc_ros.core.ident.balance_names import DEFAULT_FREE, mechanical_names  # noqa: F401
+from emfc_ros.core.ident.balance_names import (DEFAULT_FREE, mechanical_names,  # noqa: F401
+                                               PAN_FORCE_SCALE)
 from emfc_ros.core.ident.greybox import DataSection
 from emfc_ros.core.ident.linear_sensitivity import LinearSensitivity
 from emfc_ros.core.model.operating_point import equilibrium, rest_position
 from emfc_ros.core.model.parameters import BalanceParameters, MechanicalParameters
+from emfc_ros.core.model.peripherals import LoadChanger
 from emfc_ros.core.sim import min_substeps, Simulator
 
 #: Pseudo-parameters standing for the lever and coil-carrier inertias and the coil mass: the
@@ -230,8 +232,9 @@ def with_values(params: BalanceParameters, values: Mapping[str, float], load_mas
     params : BalanceParameters
         The balance.
     values : mapping of str to float
-        Mechanical parameters and any of :data:`MASS_MATRIX_NAMES` (``rest_position_m`` is
-        ignored here).
+        Mechanical parameters, any of :data:`MASS_MATRIX_NAMES` and
+        :data:`~emfc_ros.core.ident.balance_names.PAN_FORCE_SCALE` (a factor on the
+        load-changer characteristic; ``rest_position_m`` is ignored here).
     load_mass_kg : float
         Mass on the pan [kg].
     load_changer_coupled : bool
@@ -242,8 +245,12 @@ def with_values(params: BalanceParameters, values: Mapping[str, float], load_mas
     BalanceParameters
         The modified copy.
     """
-    skip = (REST_POSITION,) + MASS_MATRIX_NAMES
+    skip = (REST_POSITION, PAN_FORCE_SCALE) + MASS_MATRIX_NAMES
     out = params.with_mechanics(**{k: float(v) for k, v in values.items() if k not in skip})
+    if PAN_FORCE_SCALE in values:
+        scale = float(values[PAN_FORCE_SCALE])
+        out = replace(out, load_changer=LoadChanger(tuple(
+            scale * c for c in params.load_changer.coeffs_N_per_A_pow)))
     if any(n in values for n in MASS_MATRIX_NAMES):
         now = mass_matrix_entries(out.mechanics, load_mass_kg, load_changer_coupled)
         wanted = [float(values.get(n, v)) for n, v in zip(MASS_MATRIX_NAMES, now)]
@@ -499,10 +506,21 @@ class BalanceGreyboxModel:
             cached = self._derivatives if self._derivatives_key == key else None
         if cached is None:
             params, x0 = self.start(values)
-            cached = self._linear(params).derivatives(
-                params, x0, names, values,
+            mech = [n for n in names if n != PAN_FORCE_SCALE]
+            part = self._linear(params).derivatives(
+                params, x0, mech, values,
                 lambda v: with_values(self.params, v, self.load_mass_kg,
                                       self.load_changer_coupled), REST_POSITION)
+            if len(mech) == len(names):
+                cached = part
+            else:
+                # the pan force F = s F_file: dy/ds is the pan part of the response over s
+                cached = np.zeros((part.shape[0], len(names)))
+                for j, n in enumerate(mech):
+                    cached[:, names.index(n)] = part[:, j]
+                pan = self._linear(params).input_responses(params, x0)[:, 1]
+                cached[:, list(names).index(PAN_FORCE_SCALE)] = pan / float(
+                    values[PAN_FORCE_SCALE])
             with self._lock:
                 self._derivatives, self._derivatives_key = cached, key
         return cached[first:first + inputs.shape[0]]

@@ -31,3 +31,21 @@ def mechanical_names() -> Tuple[str, ...]:
         Field names of :class:`MechanicalParameters`, units in the names.
     """
     return tuple(f.name for f in fields(MechanicalParameters))
+
+
+#: Free-parameter name of the load changer's force scale: a factor on the balance file's
+#: load-changer characteristic, fitted with the mechanics so that the ratio of the two
+#: actuators' force constants comes from the data (issue 28 item 2; dimensionless).
+PAN_FORCE_SCALE = 'load_changer_force_scale'
+
+
+def free_names() -> Tuple[str, ...]:
+    """
+    Names ``greybox.free`` accepts: the mechanical parameters and :data:`PAN_FORCE_SCALE`.
+
+    Returns
+    -------
+    tuple of str
+        In that order.
+    """
+    return mechanical_names() + (PAN_FORCE_SCALE,)

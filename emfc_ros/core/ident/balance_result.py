@@ -319,7 +319,9 @@ def parameter_table(g: BalanceGreyboxResult, balance: Optional[BalanceParameters
             rows.append({'name': f'{part}.{key}',
                          'value': [float(c) for c in getattr(getattr(used, part), key)],
                          'unit': unit,
-                         'status': 'identified (static)' if identified else 'fixed',
+                         'status': (('identified (static)' if 'staircase' in
+                                     g.characteristics[part] else 'identified (time-domain fit)')
+                                    if identified else 'fixed'),
                          'source': (g.characteristics.get(part)
                                     or characteristic_source(balance, part)),
                          'standard_uncertainty': None,

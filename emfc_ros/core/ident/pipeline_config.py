@@ -14,7 +14,7 @@ from typing import Any, Dict, Mapping, Optional, Tuple
 from emfc_ros.core.config import (get_bool, get_float, get_float_list, get_int, get_mapping,
                                   get_str, get_str_list, join, reject_unknown)
 from emfc_ros.core.errors import ConfigError
-from emfc_ros.core.ident.balance_names import DEFAULT_FREE, mechanical_names
+from emfc_ros.core.ident.balance_names import DEFAULT_FREE, free_names, mechanical_names
 from emfc_ros.core.model.parameters import BalanceParameters
 from emfc_ros.core.pan_load import MAX_LOAD_MASS_KG
 
@@ -352,10 +352,10 @@ def _greybox(cfg: Mapping[str, Any], path: str) -> GreyboxConfig:
     reject_unknown(cfg, d.__dataclass_fields__, path)
     names = mechanical_names()
     free = tuple(get_str_list(cfg, 'free', path, default=list(d.free), min_length=1))
-    bad = [n for n in free if n not in names]
+    bad = [n for n in free if n not in free_names()]
     if bad or len(set(free)) != len(free):
         raise ConfigError(join(path, 'free'), f'unknown or repeated parameters {bad or free}; '
-                                              f'allowed: {list(names)}')
+                                              f'allowed: {list(free_names())}')
     bounds = get_float_list(cfg, 'relative_bounds', path, default=list(d.relative_bounds),
                             min_length=2, minimum=0.0)
     if len(bounds) != 2 or not 0.0 < bounds[0] <= 1.0 <= bounds[1]:

@@ -30,6 +30,7 @@ from typing import Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
+from emfc_ros.core.ident.balance_names import PAN_FORCE_SCALE
 from emfc_ros.core.model.parameters import BalanceParameters
 from emfc_ros.core.model.uncertainties import EFFECTS, StatedUncertainties
 
@@ -111,8 +112,8 @@ def components(balance: BalanceParameters, free: Sequence[str] = (),
         if u <= 0.0 or f.name in replaced:
             continue
         for effect in effects:
-            if effect in free:
-                continue
+            if effect in free or (effect == 'pan_force_scale' and PAN_FORCE_SCALE in free):
+                continue                # identified, not known
             if effect in SCALE_EFFECTS or effect == LOAD_MASS:
                 step = u
             elif unit == '1':
@@ -122,6 +123,8 @@ def components(balance: BalanceParameters, free: Sequence[str] = (),
             name = f.name if len(effects) == 1 else effect
             out.append(Component(name, f.name, effect, step, u, unit))
     for part, error in identified.items():
+        if AMPLIFIERS[part][0] == 'pan_force_scale' and PAN_FORCE_SCALE in free:
+            continue                    # the load changer's whole force scale is fitted
         u = math.hypot(float(stated.current_monitor_gain_relative), float(error))
         if u > 0.0:
             out.append(Component(f'{part}_from_staircase', 'current_monitor_gain_relative',
