@@ -70,9 +70,13 @@ def test_plant_simulator_closes_the_loop_with_the_default_rates(processes, execu
     pub = feeder.create_publisher(Float64MultiArray, 'excitation', BLOCK_QOS)
     for node in (watcher.node, feeder):
         executor.add_node(node)
+    # The weighing node subscribed too before the blocks flow (a CI run: it matched after
+    # the first blocks, had less than its window and never read).
     assert ros_harness.spin_until(
-        executor, lambda: pub.get_subscription_count() >= 1 and watcher.description is not None,
-        START_TIMEOUT_S), plant.output()
+        executor, lambda: pub.get_subscription_count() >= 1 and watcher.description is not None
+        and feeder.count_subscribers('/measurements') >= 2, START_TIMEOUT_S), \
+        plant.output() + weighing.output()
+    ros_harness.spin_until(executor, lambda: False, 0.5)     # their matches settle
     names = watcher.description.channel_names
     assert 'coil_current_precise_A' in names and 'force_command_N' in names, plant.output()
     assert watcher.description.sample_rate_Hz == RATE_HZ
