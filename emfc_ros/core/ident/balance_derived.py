@@ -3,7 +3,7 @@ Numbers derived from the balance's fitted parameters, with first-order uncertain
 
 ``F_off_N``, the mass-matrix entries, the coordinates J1c, m3 and J2c, both modes and the coil
 anti-resonance of the linearised fitted model (:func:`derived_quantities`), by propagating the
-fit's covariance through finite differences (:func:`propagate`), and their systematic part
+fit's covariance through a finite-difference gradient (:func:`gradient`), and their systematic part
 from the fit's (:mod:`~emfc_ros.core.ident.systematic`).
 """
 
@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import math
 from typing import Callable, Dict, Mapping, Optional, Sequence, Tuple
 
@@ -60,35 +61,8 @@ def gradient(fun: Callable[[Dict[str, float]], np.ndarray], values: Dict[str, fl
     return f0, (np.column_stack(grads) if grads else np.zeros((f0.size, 0)))
 
 
-def propagate(fun: Callable[[Dict[str, float]], np.ndarray], values: Dict[str, float],
-              names: Sequence[str], covariance: np.ndarray, steps: Mapping[str, float]
-              ) -> Tuple[np.ndarray, np.ndarray]:
-    """
-    Value and standard uncertainty of a vector function by first-order propagation.
-
-    Parameters
-    ----------
-    fun : callable
-        ``fun(values) -> ndarray``.
-    values : dict of str to float
-        The estimate.
-    names : sequence of str
-        Free parameters (covariance order).
-    covariance : ndarray
-        Their covariance.
-    steps : mapping of str to float
-        Finite-difference step per parameter.
-
-    Returns
-    -------
-    value, std : ndarray
-        ``fun(values)`` and the standard uncertainties.
-    """
-    f0, g = gradient(fun, values, names, steps)
-    return f0, _std(g, covariance)
-
-
 def _std(g: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+    """First-order standard uncertainties ``sqrt(diag(g C g^T))`` (NaN for a C not finite)."""
     cov = np.asarray(covariance, dtype=float)
     if not np.all(np.isfinite(cov)):
         return np.full(g.shape[0], np.nan)
@@ -150,10 +124,7 @@ def derived_quantities(model: BalanceGreyboxModel, fit: GreyboxResult,
     steps = {n: 1e-5 * (abs(values[n]) or 1.0) if n != REST_POSITION else 1e-9 for n in names}
     cov = fit.covariance if fit.covariance is not None else np.full((len(names),) * 2, np.nan)
 
-    def numbers(v: Dict[str, float]) -> np.ndarray:
-        return numbers_at(model, setting, v)
-
-    value, grad = gradient(numbers, values, names, steps)
+    value, grad = gradient(functools.partial(numbers_at, model, setting), values, names, steps)
     std = _std(grad, cov)
     keys = (('F_off_N', 'N'),) + MASS_KEYS + tuple((n, unit_of(n)) for n in MASS_COORDINATES) \
         + MODE_KEYS

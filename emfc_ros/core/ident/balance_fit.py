@@ -655,13 +655,13 @@ def residual_tests(model: BalanceGreyboxModel, fit: Any, data: Sequence[Any],
     out = []
     for sec, err, w, g, old in zip(data, errors, weights, bases, fit.sections):
         n = len(sec.outputs)
-        tested = prewhitened(err, w, weighted_transient_basis(g, w))
+        q = weighted_transient_basis(g, w)
+        tested = prewhitened(err, w, q)
         u = np.asarray(sec.inputs, dtype=float).reshape(n, -1)
         terms = None
         if with_estimation_error and fit.covariance is not None:
             d = model.output_derivatives(fit.parameters, fit.free_names, sec.inputs)
             if d is not None:
-                q = weighted_transient_basis(g, w)
                 d = np.asarray(d, dtype=float).reshape(n, -1)
                 terms = (np.column_stack([prewhitened(d[:, i], w, q)
                                           for i in range(d.shape[1])]), fit.covariance)
@@ -1032,7 +1032,8 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
                   for n in fitted.mechanics.__dataclass_fields__}
     out = BalanceGreyboxResult(fit, {s.name: s.initial for s in specs}, lin, parameters,
                                derived, fd, choice, sources, time_domain,
-                               initial_state=start_state, systematic=budget)
+                               initial_state=start_state, systematic=budget,
+                               balance=fitted)
     out.time_s.update(signals.time_s)
     out.measured_m.update(signals.measured_m)
     out.simulated_m.update(signals.simulated_m)

@@ -103,7 +103,8 @@ class BalanceGreyboxResult:
         Every identified number's change per known input (type B,
         :mod:`~emfc_ros.core.ident.systematic`).
     balance : BalanceParameters or None
-        The balance the fit used (its characteristics; None: the configuration's).
+        The fitted balance: the characteristics the fit used (identified ones included), the
+        fitted mechanics (None: the configuration's characteristics).
     characteristics : dict of str to str
         Per characteristic the fit took from elsewhere than the file (an amplifier curve
         identified from its staircase), where it came from and how it compares with the

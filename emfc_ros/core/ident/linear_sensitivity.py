@@ -30,7 +30,7 @@ when they disagree (:func:`~emfc_ros.core.ident.greybox.fit_greybox`, ``output_d
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Callable, Dict, Mapping, Optional, Sequence, Tuple
+from typing import Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -207,13 +207,10 @@ class LinearSensitivity:
         ndarray, shape (n, len(names))
             ``dy / dtheta`` [m per unit of each parameter].
         """
-        i_coil, f_pan, i_ref, f_ref = self._input_currents(params)
-        n = i_coil.size
-        drive = np.column_stack((i_coil - i_ref, f_pan - f_ref))
+        drive = self._drive(params)
+        n = drive.shape[0]
         lam, res = self.modal(params, x0, params.mechanics)
-        # one of each conjugate pair, doubled; real modes once
-        keep = [i for i in range(lam.size) if lam[i].imag >= -1e-15 * abs(lam[i])]
-        weight = np.array([2.0 if lam[i].imag > 1e-15 * abs(lam[i]) else 1.0 for i in keep])
+        keep, weight = _one_of_each_pair(lam)
         d_lam = np.zeros((len(keep), len(names)), dtype=complex)
         d_res = np.zeros((len(keep), 2, len(names)), dtype=complex)
         out = np.zeros((n, len(names)))
@@ -272,15 +269,22 @@ class LinearSensitivity:
         ndarray, shape (n, 2)
             Coil part and pan part of the position [m].
         """
-        i_coil, f_pan, i_ref, f_ref = self._input_currents(params)
-        drive = np.column_stack((i_coil - i_ref, f_pan - f_ref))
+        drive = self._drive(params)
         lam, res = self.modal(params, x0, params.mechanics)
-        out = np.zeros((i_coil.size, 2))
-        for i in range(lam.size):
-            if lam[i].imag < -1e-15 * abs(lam[i]):
-                continue                    # its conjugate counts it twice
-            weight = 2.0 if lam[i].imag > 1e-15 * abs(lam[i]) else 1.0
+        out = np.zeros(drive.shape)
+        for i, weight in zip(*_one_of_each_pair(lam)):
             for j in range(2):
                 s, _ = modal_pair(lam[i], drive[:, j])
                 out[:, j] += weight * (res[i, j] * s).real
         return out
+
+    def _drive(self, params: BalanceParameters) -> np.ndarray:
+        """Coil current [A] and pan force [N] minus their initial values, shape (n, 2)."""
+        i_coil, f_pan, i_ref, f_ref = self._input_currents(params)
+        return np.column_stack((i_coil - i_ref, f_pan - f_ref))
+
+
+def _one_of_each_pair(lam: np.ndarray) -> Tuple[List[int], np.ndarray]:
+    """Modes to sum: one of each conjugate pair (weight 2), real ones (weight 1)."""
+    keep = [i for i in range(lam.size) if lam[i].imag >= -1e-15 * abs(lam[i])]
+    return keep, np.array([2.0 if lam[i].imag > 1e-15 * abs(lam[i]) else 1.0 for i in keep])

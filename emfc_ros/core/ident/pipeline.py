@@ -35,7 +35,7 @@ from scipy import special     # Student's t quantile: stdtrit (scipy.stats takes
 
 from emfc_ros.core.blas_threads import with_single_blas_thread
 from emfc_ros.core.ident import balance_fit
-from emfc_ros.core.ident.balance_greybox import PAN_FORCE_SCALE, with_values
+from emfc_ros.core.ident.balance_names import PAN_FORCE_SCALE
 from emfc_ros.core.ident.balance_result import (BalanceGreyboxResult, greybox_dict,
                                                 parameter_table, Setting)
 from emfc_ros.core.ident.errors import IdentificationError
@@ -807,13 +807,10 @@ def _greybox_step(result: IdentificationResult, channels: Mapping[str, np.ndarra
         on_model=model_ready if done is not None else None,
         identified_amplifiers=gain_errors)
     if out is not None:
-        out.balance = setting.balance
         out.characteristics = characteristics
-        scale = out.fit.parameters.get(PAN_FORCE_SCALE)
-        if scale is not None and PAN_FORCE_SCALE in out.fit.free_names:
+        if PAN_FORCE_SCALE in out.fit.free_names:
+            scale = out.fit.parameters[PAN_FORCE_SCALE]
             se = out.fit.standard_errors.get(PAN_FORCE_SCALE, float('nan'))
-            out.balance = with_values(setting.balance, {PAN_FORCE_SCALE: scale},
-                                      cfg.load_mass_kg, cfg.load_changer_coupled)
             out.characteristics = dict(characteristics, load_changer=(
                 f"identified (time-domain fit: the file's force constant times {scale:.6g} "
                 f"+/- {se:.2g}, relative to the coil's)"))
