@@ -35,6 +35,7 @@ from scipy import optimize
 
 from emfc_ros.core.blas_threads import with_single_blas_thread
 from emfc_ros.core.ident.errors import IdentificationError
+from emfc_ros.core.ident.hold import hold_factor
 from emfc_ros.core.ident.local_polynomial import local_polynomial_frf
 from emfc_ros.core.model.linear import linearise, LinearModel
 from emfc_ros.core.model.load import loaded
@@ -166,8 +167,6 @@ def measure_frfs(channels: Mapping[str, np.ndarray], sample_rate_Hz: float,
     list of MeasuredFrf
         One per section and input with at least 8 lines.
     """
-    from emfc_ros.core.ident.pipeline import hold_factor
-
     forces = setpoint_forces(channels, balance)
     y = np.asarray(channels['position_m'], dtype=float)
     out = []

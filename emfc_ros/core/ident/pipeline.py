@@ -40,6 +40,7 @@ from emfc_ros.core.ident.balance_result import (BalanceGreyboxResult, greybox_di
                                                 parameter_table, Setting)
 from emfc_ros.core.ident.errors import IdentificationError
 from emfc_ros.core.ident.frf import estimate_frf, FrequencyResponseData
+from emfc_ros.core.ident.hold import hold_factor
 from emfc_ros.core.ident.local_polynomial import local_polynomial_frf
 from emfc_ros.core.ident.mimo import estimate_two_input_frf
 from emfc_ros.core.ident.pipeline_config import IdentificationConfig
@@ -465,33 +466,6 @@ def _forces(channels: Mapping[str, np.ndarray], cfg: IdentificationConfig
 
 
 # ---------------------------------------------------------------- step (a)
-
-
-def hold_factor(frequency_Hz: np.ndarray, sample_rate_Hz: float, hold: str) -> np.ndarray:
-    """
-    Frequency response of the DAC hold seen between sampled force and sampled position.
-
-    Parameters
-    ----------
-    frequency_Hz : ndarray
-        Frequencies [Hz].
-    sample_rate_Hz : float
-        Sample rate [Hz].
-    hold : {'zoh', 'foh', 'none'}
-        Zero-order hold (half-sample delay and sinc), first-order hold with one sample of
-        delay (one sample delay and sinc squared) or none (1).
-
-    Returns
-    -------
-    ndarray
-        Complex factor; divide a measured response by it to compare with the continuous model.
-    """
-    x = np.asarray(frequency_Hz, dtype=float) / float(sample_rate_Hz)
-    if hold == 'zoh':
-        return np.exp(-1j * np.pi * x) * np.sinc(x)
-    if hold == 'foh':
-        return np.exp(-2j * np.pi * x) * np.sinc(x) ** 2
-    return np.ones_like(x, dtype=complex)
 
 
 def _compensate(frd: FrequencyResponseData, fs: float, hold: str) -> FrequencyResponseData:
