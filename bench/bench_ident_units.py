@@ -17,7 +17,11 @@ Variants, each on the same draws:
   +/-3 % too, identified with the default free set (their ratio not fitted);
 - ``force_constants_ratio``: ``force_constants`` with the load changer's force scale free
   (``greybox.free`` + ``load_changer_force_scale``);
-- ``user_prbs``: ``amplifiers``, with the first section a user's PRBS starting at +2.5 mV.
+- ``user_prbs``: ``amplifiers``, with the first section a user's PRBS starting at +2.5 mV;
+- ``user_multisine``: ``user_prbs`` with the second section an odd random-phase multisine on
+  the load changer (``offnominal.MULTISINE_SECTION``, one DFT line in twenty excited);
+- ``user_noise``: ``user_multisine`` with the coil's PRBS replaced by Gaussian noise around
+  +1 mV (``offnominal.RANDOM_SECTION``).
 
 Per variant:
 
@@ -41,7 +45,8 @@ from pathlib import Path
 import numpy as np
 
 from emfc_ros.core.ident.balance_names import DEFAULT_FREE, PAN_FORCE_SCALE
-from emfc_ros.core.ident.offnominal import (BENCH_SEEDS, draw_unit, PRBS_SECTION, record_draw,
+from emfc_ros.core.ident.offnominal import (BENCH_SEEDS, draw_unit, MULTISINE_SECTION,
+                                            PRBS_SECTION, RANDOM_SECTION, record_draw,
                                             truth_values, unit_experiment, with_position_gain)
 from emfc_ros.core.ident.pipeline import identify
 
@@ -52,16 +57,16 @@ MODES = (('low_mode_frequency_Hz', 'low_mode_Hz'), ('high_mode_frequency_Hz', 'h
 def one(seed: int, variant: str, experiments: dict) -> dict:
     unit = draw_unit(seed, force_constants=variant.startswith('force_constants'),
                      sensor_gain_relative=0.0 if variant == 'amplifiers_true_sensor' else 0.02)
-    exp = experiments['user_prbs' if variant == 'user_prbs' else 'shipped']
+    user = variant.startswith('user_')
+    exp = experiments[variant if user else 'shipped']
     rec = with_position_gain(record_draw(unit.params, seed, experiment=exp, draw_seed=seed),
                              unit.sensor_gain)
     sections = tuple(s.name for s in exp.sections if 'staircase' not in s.name)
     options = rec.options(sections=sections)
     if variant == 'force_constants_ratio':
         options['greybox']['free'] = list(DEFAULT_FREE) + [PAN_FORCE_SCALE]
-    if variant == 'user_prbs':
-        options['frf'] = {'coil_sections': ['coil_prbs'],
-                          'pan_sections': ['load_changer_chirp'],
+    if user:
+        options['frf'] = {'coil_sections': [sections[0]], 'pan_sections': [sections[1]],
                           'two_input_sections': list(sections[2:])}
     res = identify(rec.recording, rec.section_table, options)
     row = {'seed': seed, 'variant': variant, 'success': res.success,
@@ -92,9 +97,12 @@ def main() -> int:
     ap.add_argument('--draws', type=int, default=20)
     ap.add_argument('--variants', nargs='*',
                     default=['amplifiers_true_sensor', 'amplifiers', 'force_constants',
-                             'force_constants_ratio', 'user_prbs'])
+                             'force_constants_ratio', 'user_prbs', 'user_multisine',
+                             'user_noise'])
     args = ap.parse_args()
-    experiments = {'shipped': unit_experiment(), 'user_prbs': unit_experiment(PRBS_SECTION)}
+    experiments = {'shipped': unit_experiment(), 'user_prbs': unit_experiment(PRBS_SECTION),
+                   'user_multisine': unit_experiment(PRBS_SECTION, MULTISINE_SECTION),
+                   'user_noise': unit_experiment(RANDOM_SECTION, MULTISINE_SECTION)}
     rows = []
     for seed in BENCH_SEEDS[:args.draws]:
         for variant in args.variants:
@@ -122,8 +130,12 @@ def main() -> int:
     print(json.dumps(summary, indent=1))
     out = Path(__file__).resolve().parent / 'results'
     out.mkdir(exist_ok=True)
-    (out / 'ident_units.json').write_text(json.dumps({'summary': summary, 'rows': rows},
-                                                     indent=1, default=str))
+    path = out / 'ident_units.json'
+    if path.is_file():              # a run of some variants keeps the others' results
+        old = json.loads(path.read_text())
+        summary = dict(old.get('summary', {}), **summary)
+        rows = [r for r in old.get('rows', []) if r.get('variant') not in args.variants] + rows
+    path.write_text(json.dumps({'summary': summary, 'rows': rows}, indent=1, default=str))
     return 0
 
 

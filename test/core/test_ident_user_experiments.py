@@ -17,8 +17,9 @@ import pytest
 import yaml
 
 from emfc_ros.core.ident.initial_state import correct_record, free_response_basis
-from emfc_ros.core.ident.offnominal import (draw_balance, record_draw, relative_error,
-                                            TEST_SEEDS, truth_values)
+from emfc_ros.core.ident.offnominal import (draw_balance, MULTISINE_SECTION, PRBS_SECTION,
+                                            RANDOM_SECTION, record_draw, relative_error,
+                                            TEST_SEEDS, truth_values, unit_experiment)
 from emfc_ros.core.ident.pipeline import identify
 from emfc_ros.core.model.linear import linearise
 from emfc_ros.core.model.load import loaded
@@ -111,3 +112,46 @@ def test_a_plan_that_starts_at_a_non_zero_setpoint_identifies(initial):
     assert all(abs(errors[n]) <= 0.10 for n in ('d1_Nms_per_rad', 'd2_Nms_per_rad')), errors
     assert res.to_dict()['greybox']['initial_state']['rms_error_with_m'] == pytest.approx(
         state.rms_after_m)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize('first', ['prbs', 'noise'])
+def test_a_multisine_on_the_load_changer_identifies(first):
+    """
+    The issue's user plan: a multisine on the load changer after a PRBS or noise on the coil.
+
+    PRBS, or Gaussian noise around +1 mV, on the coil; an odd random-phase multisine on the
+    load changer; the shipped two-input sections after them.
+
+    The multisine excites one DFT line in twenty: the ordinary LPM's windows between its
+    lines held no input and gave the feature start a low mode of 2.6 Hz instead of 3.3 Hz (c1
+    64 % off at the start, 6 % after the fit, "fits only 70 %"); the noise plan also met two
+    "optima" 1e-5 apart that the ambiguity probe called two answers.
+    """
+    seed = TEST_SEEDS[3]
+    coil = PRBS_SECTION if first == 'prbs' else RANDOM_SECTION
+    experiment = unit_experiment(coil, MULTISINE_SECTION)
+    names = [s.name for s in experiment.sections if 'staircase' not in s.name]
+    assert names[:2] == [coil['name'], 'load_changer_multisine']
+    rec = record_draw(draw_balance(seed), seed, experiment=experiment, draw_seed=seed)
+    options = rec.options(sections=tuple(names))
+    options['frf'] = {'coil_sections': [names[0]], 'pan_sections': [names[1]],
+                      'two_input_sections': names[2:]}
+    res = identify(rec.recording, rec.section_table, options)
+    assert res.success, (res.failures, res.warnings)
+    pan = [r for r in res.frfs if r.section == 'load_changer_multisine']
+    assert pan and pan[0].frd.details['sparse_excitation']
+    got = res.greybox.fit.parameters
+    truth = truth_values(rec.truth)
+    errors = {n: relative_error(got[n], truth[n]) for n in
+              ('c1_Nm_per_rad', 'c2_Nm_per_rad', 'd1_Nms_per_rad', 'd2_Nms_per_rad')}
+    assert all(abs(errors[n]) <= 0.02 for n in ('c1_Nm_per_rad', 'c2_Nm_per_rad')), errors
+    assert all(abs(errors[n]) <= 0.10 for n in ('d1_Nms_per_rad', 'd2_Nms_per_rad')), errors
+    for key, attr in (('low_mode_frequency_Hz', 'low_mode_Hz'),
+                      ('high_mode_frequency_Hz', 'high_mode_Hz')):
+        assert abs(relative_error(res.greybox.derived[key].value,
+                                  getattr(rec.modal, attr))) <= 0.005
+    # the paper-style table found an excited line next to each even frequency
+    table = pan[0].selected
+    assert table is not None and len(table.details['requested_frequency_Hz']) >= 8
+    assert np.all(np.abs(table.frequency_Hz - table.details['requested_frequency_Hz']) <= 5.0)

@@ -82,6 +82,9 @@ MAX_WORKERS = 4
 AMBIGUITY_CHI2 = 4.0
 #: Two optima further apart than this many standard uncertainties are different answers.
 AMBIGUITY_SIGMAS = 3.0
+#: Two optima with no chi-square barrier between them are one answer (a flat floor the
+#: optimiser left at two points) unless a parameter differs by more than this fraction.
+AMBIGUITY_SAME_BASIN_RELATIVE = 0.01
 #: Masses and inertias: the data determine the mass matrix, these are its coordinates.
 INERTIA_NAMES = ('J1c_kgm2', 'm3_kg', 'J2c_kgm2', 'm1_kg', 'm2_kg', 'mp_kg',
                  'load_changer_mass_kg')
@@ -451,7 +454,9 @@ def probe_ambiguity(model: balance_frf.MechanicsFrfModel, frfs: Sequence[Any],
             apart = float(np.max(np.abs(y - x) / np.where(se > 0.0, se, np.inf)))
             if other_cost < cost - AMBIGUITY_CHI2:
                 best, cost, x = other, other_cost, y
-            elif other_cost <= cost + AMBIGUITY_CHI2 and apart > AMBIGUITY_SIGMAS:
+            elif other_cost <= cost + AMBIGUITY_CHI2 and apart > AMBIGUITY_SIGMAS and \
+                    _separate_optima(model, frfs, values, names, x, y,
+                                     max(cost, other_cost)):
                 shown = ', '.join(f'{n} {a:.4g} or {b:.4g}' for n, a, b in zip(names, x, y)
                                   if abs(b - a) > AMBIGUITY_SIGMAS * se[names.index(n)])
                 verdict.failures.append(
@@ -461,6 +466,19 @@ def probe_ambiguity(model: balance_frf.MechanicsFrfModel, frfs: Sequence[Any],
                     f'(greybox.free without J1c_kgm2, m3_kg, J2c_kgm2)')
                 return best
     return best
+
+
+def _separate_optima(model: balance_frf.MechanicsFrfModel, frfs: Sequence[Any],
+                     values: Mapping[str, float], names: Sequence[str], x: np.ndarray,
+                     y: np.ndarray, cost: float) -> bool:
+    # Two optima are two answers when a chi-square barrier separates them (the cost at their
+    # geometric midpoint exceeds both by AMBIGUITY_CHI2) or when they differ materially; a
+    # random-noise coil section put the two starts 1e-5 apart on one flat floor (issue 28).
+    if float(np.max(np.abs(y / x - 1.0))) > AMBIGUITY_SAME_BASIN_RELATIVE:
+        return True
+    mid = dict(values, **{n: float(v) for n, v in zip(names, np.sqrt(x * y))})
+    r = balance_frf.weighted_residuals(model, frfs, mid)
+    return float(r @ r) > cost + AMBIGUITY_CHI2
 
 
 def offset_start(model: BalanceGreyboxModel, values: Dict[str, float],

@@ -16,6 +16,15 @@ at ``r = 0``), the residual gives the noise variance of ``V``, and the covarianc
 follows as ``sigma^2 [(K^H K)^-1]_ii``. Windows that overlap give correlated estimates, so by
 default only every ``2n + 1``-th line is evaluated (independent windows).
 
+Sparse excitation (issue 28): a multisine that excites only some lines (odd lines, a line
+every few DFT lines of the section) leaves windows in which the input carries nothing, where
+the polynomial ``G_i`` is undetermined. Such an input is detected from its spectrum
+(:func:`excited_lines`: at least :data:`SPARSE_POWER_FRACTION` of its power on lines that stand
+:data:`SPARSE_CONTRAST` times above the median of their window) and then handled as the LPM for
+periodic excitations does: its response is evaluated at its excited lines only, constant over
+the window (degree 0: only the centre line carries it), and the window's other lines estimate
+the transient and the noise.
+
 "Coherence" here is the LPM analogue of the Welch coherence: the fraction of the output power in
 the window explained by the inputs, ``P_model / (P_model + sigma^2)``.
 """
@@ -32,6 +41,46 @@ from emfc_ros.core.ident.frf import FrequencyResponseData
 
 #: Degrees of freedom left for the noise estimate when the half width is chosen automatically.
 DEFAULT_DOF = 6
+#: A line is excited (sparse excitation) when its input amplitude exceeds the median of its
+#: window by this factor (a broadband input's amplitudes vary within a window by a few).
+SPARSE_CONTRAST = 10.0
+#: An input is sparse when at least this fraction of its power lies on such lines.
+SPARSE_POWER_FRACTION = 0.9
+#: Excited lines carry at least this fraction of the largest line's amplitude (quantisation
+#: leaves lines of 1e-4 between those of a multisine, themselves far above their neighbours).
+SPARSE_FLOOR = 1.0e-2
+
+
+def excited_lines(spectrum: np.ndarray, half_width: int) -> Optional[np.ndarray]:
+    """
+    The excited lines of a sparse input, None for a broadband one.
+
+    Parameters
+    ----------
+    spectrum : ndarray
+        The input's DFT (one-sided, DC first).
+    half_width : int
+        Half width of the window the median is taken over [lines].
+
+    Returns
+    -------
+    ndarray of int or None
+        Indices of the lines standing :data:`SPARSE_CONTRAST` above their window's median
+        (and above :data:`SPARSE_FLOOR` of the largest)
+        when they carry :data:`SPARSE_POWER_FRACTION` of the power (DC excluded), else None.
+    """
+    from scipy.ndimage import median_filter
+
+    a = np.abs(np.asarray(spectrum))
+    a[0] = 0.0
+    power = float(np.sum(a ** 2))
+    if not power > 0.0:
+        return None
+    local = median_filter(a, size=2 * max(int(half_width), 1) + 1, mode='nearest')
+    hits = np.flatnonzero((a > SPARSE_CONTRAST * local) & (a > SPARSE_FLOOR * np.max(a)))
+    if float(np.sum(a[hits] ** 2)) < SPARSE_POWER_FRACTION * power:
+        return None
+    return hits
 
 
 def auto_half_width(n_inputs: int, degree: int, dof: int = DEFAULT_DOF) -> int:
@@ -113,9 +162,25 @@ def local_polynomial_frf(inputs: Sequence[np.ndarray], output: np.ndarray,
     if degree < 0:
         raise IdentificationError(f'LPM: degree must be >= 0, got {degree}')
     n_in = len(us)
-    n = auto_half_width(n_in, degree) if half_width is None else int(half_width)
+    N = y.size
+    scale = 1.0 / np.sqrt(N)
+    Y = np.fft.rfft(y) * scale
+    U = np.array([np.fft.rfft(u) * scale for u in us])
+    n0 = auto_half_width(n_in, degree) if half_width is None else int(half_width)
+    # A sparse input whose excited lines are close enough that a window holds degree + 1 of
+    # them is served by the ordinary LPM (its G polynomial rests on them).
+    sparse = [excited_lines(U[i], n0) for i in range(n_in)]
+    spacing = [int(np.median(np.diff(e))) if e is not None and e.size > 1 else 0 for e in sparse]
+    sparse = [e if e is not None and (degree + 1) * sp > 2 * n0 + 1 else None
+              for e, sp in zip(sparse, spacing)]
+    degrees = [0 if e is not None else int(degree) for e in sparse]
+    n_par = sum(d + 1 for d in degrees) + degree + 1
+    n = n0
+    if half_width is None and any(e is not None for e in sparse):
+        # one excited line per window: no wider than the closest spacing allows
+        n = min(int(np.ceil((n_par + DEFAULT_DOF - 1) / 2.0)),
+                min(sp for e, sp in zip(sparse, spacing) if e is not None) - 1)
     width = 2 * n + 1
-    n_par = (degree + 1) * (n_in + 1)
     dof = width - n_par
     if dof < 1:
         raise IdentificationError(f'LPM: half width {n} leaves no degree of freedom for '
@@ -123,10 +188,6 @@ def local_polynomial_frf(inputs: Sequence[np.ndarray], output: np.ndarray,
     step = width if stride is None else int(stride)
     if step < 1:
         raise IdentificationError(f'LPM: stride must be >= 1, got {stride}')
-    N = y.size
-    scale = 1.0 / np.sqrt(N)
-    Y = np.fft.rfft(y) * scale
-    U = np.array([np.fft.rfft(u) * scale for u in us])
     n_lines = Y.size
     if n_lines < width + 1:
         raise IdentificationError(f'LPM: {N} samples give {n_lines} lines, fewer than the '
@@ -135,16 +196,50 @@ def local_polynomial_frf(inputs: Sequence[np.ndarray], output: np.ndarray,
     f_max = fs / 2.0 if frequency_max_Hz is None else float(frequency_max_Hz)
     k_lo = max(1, int(np.ceil(float(frequency_min_Hz) / resolution)))
     k_hi = min(n_lines - 1, int(np.floor(f_max / resolution)))
-    lines = np.arange(k_lo, k_hi + 1, step)
-    if lines.size == 0:
-        raise IdentificationError(f'LPM: no line in [{frequency_min_Hz}, {f_max}] Hz')
-    # window start: centred where possible, shifted at the edges (DC and Nyquist)
+    dense = np.arange(k_lo, k_hi + 1, step)
+    solved = {}
+    out = []
+    for i in range(n_in):
+        if sparse[i] is None:
+            lines = dense
+        else:
+            lines = sparse[i][(sparse[i] >= k_lo) & (sparse[i] <= k_hi)]
+            if step > 1 and stride is not None:
+                lines = lines[::step]
+        key = 'dense' if sparse[i] is None else f'sparse{i}'
+        if key not in solved:
+            if lines.size == 0:
+                raise IdentificationError(f'LPM: no line in [{frequency_min_Hz}, {f_max}] Hz')
+            solved[key] = _solve(Y, U, lines, n, degrees, degree, dof)
+        g_all, std_all, coherence = solved[key]
+        units = list(input_units) + [''] * (n_in - len(input_units))
+        details = {'degree': int(degrees[i]), 'half_width_lines': int(n),
+                   'stride_lines': int(step), 'dof': int(dof),
+                   'resolution_Hz': float(resolution),
+                   'noise_std': std_all[-1],
+                   'input_amplitude': np.abs(U[i][lines]),
+                   'sparse_excitation': sparse[i] is not None}
+        out.append(FrequencyResponseData(lines * resolution, g_all[i], coherence.copy(),
+                                         std_all[i], float(dof), 'LPM', units[i],
+                                         output_unit, details))
+    return out
+
+
+def _solve(Y: np.ndarray, U: np.ndarray, lines: np.ndarray, n: int, degrees: Sequence[int],
+           degree: int, dof: int) -> tuple:
+    # The local least-squares problems at ``lines``: per input a polynomial of its degree
+    # times its spectrum, plus the transient polynomial of ``degree``.
+    n_in = U.shape[0]
+    width = 2 * n + 1
+    n_lines = Y.size
     start = np.clip(lines - n, 1, n_lines - width)
     idx = start[:, None] + np.arange(width)[None, :]
     r = (idx - lines[:, None]).astype(float)
     r_scaled = r / max(n, 1)
-    powers = np.stack([r_scaled ** s for s in range(degree + 1)], axis=-1)   # (K, W, R+1)
-    cols = [U[i][idx][..., None] * powers for i in range(n_in)] + [powers.astype(complex)]
+    powers = [np.stack([r_scaled ** s for s in range(d + 1)], axis=-1) for d in degrees]
+    transient = np.stack([r_scaled ** s for s in range(degree + 1)], axis=-1)
+    cols = [U[i][idx][..., None] * powers[i] for i in range(n_in)] + \
+        [transient.astype(complex)]
     K = np.concatenate(cols, axis=-1)                                       # (K, W, P)
     rhs = Y[idx]
     norms = np.sqrt(np.sum(np.abs(K) ** 2, axis=1))
@@ -162,23 +257,13 @@ def local_polynomial_frf(inputs: Sequence[np.ndarray], output: np.ndarray,
     theta = theta / norms
     cov_diag = np.real(np.diagonal(gram_inv, axis1=1, axis2=2)) / norms ** 2
     model = np.zeros(idx.shape, dtype=complex)
+    offsets = np.cumsum([0] + [d + 1 for d in degrees])
     for i in range(n_in):
-        g_local = powers @ theta[:, i * (degree + 1):(i + 1) * (degree + 1), None]
+        g_local = powers[i] @ theta[:, offsets[i]:offsets[i + 1], None]
         model += g_local[..., 0] * U[i][idx]
     p_model = np.mean(np.abs(model) ** 2, axis=1)
     with np.errstate(divide='ignore', invalid='ignore'):
         coherence = np.where(p_model + sigma2 > 0.0, p_model / (p_model + sigma2), 0.0)
-    freq = lines * resolution
-    units = list(input_units) + [''] * (n_in - len(input_units))
-    out = []
-    for i in range(n_in):
-        j = i * (degree + 1)
-        g = theta[:, j]
-        std = np.sqrt(np.maximum(sigma2 * cov_diag[:, j], 0.0))
-        details = {'degree': int(degree), 'half_width_lines': int(n), 'stride_lines': int(step),
-                   'dof': int(dof), 'resolution_Hz': float(resolution),
-                   'noise_std': np.sqrt(sigma2),
-                   'input_amplitude': np.abs(U[i][lines])}
-        out.append(FrequencyResponseData(freq, g, coherence.copy(), std, float(dof), 'LPM',
-                                         units[i], output_unit, details))
-    return out
+    gs = [theta[:, offsets[i]] for i in range(n_in)]
+    stds = [np.sqrt(np.maximum(sigma2 * cov_diag[:, offsets[i]], 0.0)) for i in range(n_in)]
+    return gs, stds + [np.sqrt(sigma2)], coherence

@@ -380,15 +380,17 @@ def default_experiment() -> Experiment:
     return load_experiment_file(config_file(_TRAJECTORY))
 
 
-def unit_experiment(first_section: Optional[Mapping[str, Any]] = None) -> Experiment:
+def unit_experiment(first_section: Optional[Mapping[str, Any]] = None,
+                    second_section: Optional[Mapping[str, Any]] = None) -> Experiment:
     """
     The shipped trajectory followed by the static staircases, as the main job plays them.
 
     Parameters
     ----------
-    first_section : mapping, optional
-        ``{'name': ..., 'spec': ...}``: a user's section in place of the first one (e.g. a
-        PRBS on the coil).
+    first_section, second_section : mapping, optional
+        ``{'name': ..., 'spec': ...}``: a user's section in place of the first (coil) or the
+        second (load changer) one, e.g. a PRBS on the coil (:data:`PRBS_SECTION`) or a
+        multisine on the load changer (:data:`MULTISINE_SECTION`).
 
     Returns
     -------
@@ -406,11 +408,13 @@ def unit_experiment(first_section: Optional[Mapping[str, Any]] = None) -> Experi
     files = (_TRAJECTORY, 'static_characteristics.yaml')
     maps = [copy.deepcopy(find_experiment_mapping(yaml.safe_load(config_file(f).read_text())))
             for f in files]
-    if first_section is not None:
-        old = maps[0]['sections'][0]
-        maps[0]['sections'][0] = first_section['name']
+    for index, section in enumerate((first_section, second_section)):
+        if section is None:
+            continue
+        old = maps[0]['sections'][index]
+        maps[0]['sections'][index] = section['name']
         del maps[0]['section'][old]
-        maps[0]['section'][first_section['name']] = first_section['spec']
+        maps[0]['section'][section['name']] = copy.deepcopy(section['spec'])
     return experiment_from_config({'experiment': merge_experiments(maps, list(files))})
 
 
@@ -418,6 +422,19 @@ def unit_experiment(first_section: Optional[Mapping[str, Any]] = None) -> Experi
 #: starting at +2.5 mV where the balance rested at 0 V (issue 28 item 3).
 PRBS_SECTION = {'name': 'coil_prbs', 'spec': {'duration_s': 10.0, 'coil': {'signals': {'p': {
     'type': 'prbs', 'order': 14, 'hold_samples': 5, 'low_V': -0.0025, 'high_V': 0.0025}}}}}
+
+
+#: A user's second section: a random-phase odd multisine on the load changer, 1 s period,
+#: 5 Hz to 2 kHz (every other 1 Hz line excited), 0.2 V rms (the chirp's rms).
+MULTISINE_SECTION = {'name': 'load_changer_multisine', 'spec': {
+    'duration_s': 10.0, 'load_changer': {'signals': {'m': {
+        'type': 'multisine', 'rms_V': 0.2, 'period_samples': 10000, 'f_min_Hz': 5.0,
+        'f_max_Hz': 2000.0, 'odd_only': True, 'phases': 'random', 'seed': 7}}}}}
+
+#: A user's first section: Gaussian noise on the coil around +1 mV (1.2 mV std, the chirp's
+#: rms), starting away from the 0 V the balance rested at.
+RANDOM_SECTION = {'name': 'coil_noise', 'spec': {'duration_s': 10.0, 'coil': {'signals': {'n': {
+    'type': 'gaussian_noise', 'mean_V': 0.001, 'std_V': 0.0012, 'seed': 3}}}}}
 
 
 def record_draw(params: BalanceParameters, seed: int, *, experiment: Optional[Experiment] = None,

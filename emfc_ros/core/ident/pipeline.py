@@ -529,6 +529,10 @@ def _estimate(cfg: Any, inputs: List[np.ndarray], y: np.ndarray, fs: float
     return [f.band(cfg.frequency_min_Hz, cfg.frequency_max_Hz) for f in frds]
 
 
+#: How far the paper-style table looks for an excited line [DFT lines].
+SELECTED_SEARCH_LINES = 50
+
+
 def _selected(cfg: Any, u: np.ndarray, y: np.ndarray, fs: float,
               frd: FrequencyResponseData) -> Optional[FrequencyResponseData]:
     # The LPM at the DFT line nearest each frequency: unlike the single-frequency DFT it is
@@ -537,21 +541,34 @@ def _selected(cfg: Any, u: np.ndarray, y: np.ndarray, fs: float,
     freqs = [f for f in cfg.selected_frequencies_Hz if resolution <= f < fs / 2.0 - resolution]
     if not freqs:
         return None
-    values, stds, cohs, lines = [], [], [], []
+    values, stds, cohs, lines, requested = [], [], [], [], []
     for f in freqs:
         k = round(f / resolution)
-        got, = local_polynomial_frf([u], y, fs, degree=cfg.lpm_degree,
-                                    half_width=cfg.lpm_half_width_lines or None, stride=1,
-                                    frequency_min_Hz=(k - 0.5) * resolution,
-                                    frequency_max_Hz=(k + 0.5) * resolution,
-                                    input_units=['N'], output_unit='m')
-        values.append(got.response[0])
-        stds.append(got.std[0])
-        cohs.append(got.coherence[0])
-        lines.append(got.frequency_Hz[0])
+        got = None
+        # a sparse multisine may leave the line itself unexcited: the nearest excited one
+        for reach in (0.5, 0.5 + SELECTED_SEARCH_LINES):
+            try:
+                got, = local_polynomial_frf([u], y, fs, degree=cfg.lpm_degree,
+                                            half_width=cfg.lpm_half_width_lines or None,
+                                            stride=1, frequency_min_Hz=(k - reach) * resolution,
+                                            frequency_max_Hz=(k + reach) * resolution,
+                                            input_units=['N'], output_unit='m')
+                break
+            except IdentificationError:
+                continue
+        if got is None:
+            continue
+        j = int(np.argmin(np.abs(got.frequency_Hz - f)))
+        requested.append(f)
+        values.append(got.response[j])
+        stds.append(got.std[j])
+        cohs.append(got.coherence[j])
+        lines.append(got.frequency_Hz[j])
+    if not lines:
+        return None
     sel = FrequencyResponseData(np.array(lines), np.array(values), np.array(cohs),
                                 np.array(stds), frd.n_averages, 'LPM', 'N', 'm',
-                                {'requested_frequency_Hz': list(freqs)})
+                                {'requested_frequency_Hz': requested})
     return _compensate(sel, fs, cfg.hold_compensation)
 
 
