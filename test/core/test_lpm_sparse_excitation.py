@@ -1,9 +1,12 @@
 """The LPM on sparse excitations (odd multisines): detection, exactness, calibrated std."""
 
 import numpy as np
+import pytest
 from scipy import signal
 
-from emfc_ros.core.ident.local_polynomial import excited_lines, local_polynomial_frf
+from emfc_ros.core.ident.errors import IdentificationError
+from emfc_ros.core.ident.local_polynomial import (detect_excitation, excited_lines,
+                                                  local_polynomial_frf)
 from emfc_ros.core.signals.multisine import Multisine
 
 FS = 1000.0
@@ -94,3 +97,24 @@ def test_two_inputs_a_multisine_and_noise():
     wb = np.exp(-2j * np.pi * b.frequency_Hz / FS)
     np.testing.assert_allclose(a.response, (0.5 + 0.2 * wa) / (1 - 0.3 * wa), rtol=1e-3)
     np.testing.assert_allclose(b.response, -1.0 / (1 + 0.5 * wb), rtol=1e-3)
+
+
+def test_an_excitation_detected_once_serves_every_band():
+    sysd = _system()
+    u = _multisine()
+    y = _response(u, sysd, seed=7, noise=0.02)
+    once = detect_excitation([u])
+    assert once[0] is not None
+    for band in ((5.0, 40.0), (99.5, 100.5), (150.0, 300.0)):
+        a, = local_polynomial_frf([u], y, FS, frequency_min_Hz=band[0],
+                                  frequency_max_Hz=band[1])
+        b, = local_polynomial_frf([u], y, FS, frequency_min_Hz=band[0],
+                                  frequency_max_Hz=band[1], excitation=once)
+        np.testing.assert_array_equal(a.frequency_Hz, b.frequency_Hz)
+        np.testing.assert_allclose(a.response, b.response, rtol=1e-12)
+    # broadband declared: the ordinary LPM (every 13th line), not the excited lines
+    c, = local_polynomial_frf([u], y, FS, frequency_min_Hz=5.0, frequency_max_Hz=40.0,
+                              excitation=[None])
+    assert not c.details['sparse_excitation'] and np.allclose(np.diff(c.frequency_Hz), 0.65)
+    with pytest.raises(IdentificationError, match='excitation names 2 inputs'):
+        local_polynomial_frf([u], y, FS, excitation=[None, None])

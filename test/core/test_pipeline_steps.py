@@ -66,7 +66,7 @@ def test_hold_factor():
 def test_config_defaults_and_errors():
     cfg = IdentificationConfig.from_mapping({'greybox': {'method': 'pattern_search'}})
     assert cfg.greybox.method == 'pattern_search'
-    assert cfg.greybox.free[-1] == 'F_off_N'
+    assert cfg.greybox.free[-2:] == ('F_off_N', 'load_changer_force_scale')
     assert cfg.to_dict()['frf']['frequency_min_Hz'] == 5.0
     with pytest.raises(ConfigError, match='greybox.free'):
         IdentificationConfig.from_mapping({'greybox': {'free': ['c9']}})

@@ -921,6 +921,13 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
                                   f'the mass matrix is fixed ({n}: {reason})')
             verdict.warnings.append(f'greybox: {n} fixed at its configured value '
                                     f'{start[n]:.6g} {unit_of(n)}: {reason}')
+    if PAN_FORCE_SCALE in free and not any(
+            np.ptp(channels['load_changer_setpoint_V'][first:first + n]) > 0.0
+            for _, first, n in sections):
+        free.remove(PAN_FORCE_SCALE)
+        verdict.warnings.append(f"greybox: {PAN_FORCE_SCALE} fixed at 1 (the file's "
+                                f'load-changer characteristic): no fitted section moves the '
+                                f'load changer')
     if not free and not fit_offset:
         verdict.failures.append('greybox: no parameter the data determine is left free')
         return None, verdict

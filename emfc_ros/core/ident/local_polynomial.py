@@ -105,6 +105,28 @@ def auto_half_width(n_inputs: int, degree: int, dof: int = DEFAULT_DOF) -> int:
     return int(np.ceil((unknowns + dof - 1) / 2.0))
 
 
+def detect_excitation(inputs: Sequence[np.ndarray], *, degree: int = 2,
+                      half_width: Optional[int] = None) -> List[Optional[np.ndarray]]:
+    """
+    Each input's excited lines (sparse) or None (broadband), for ``excitation``.
+
+    Parameters
+    ----------
+    inputs : sequence of ndarray
+        The input records.
+    degree, half_width
+        As for :func:`local_polynomial_frf`.
+
+    Returns
+    -------
+    list of (ndarray or None)
+        :func:`excited_lines` of each input's DFT.
+    """
+    n = auto_half_width(len(inputs), degree) if half_width is None else int(half_width)
+    return [excited_lines(np.fft.rfft(np.asarray(u, dtype=float).ravel()), n)
+            for u in inputs]
+
+
 @with_single_blas_thread
 def local_polynomial_frf(inputs: Sequence[np.ndarray], output: np.ndarray,
                          sample_rate_Hz: float, *, degree: int = 2,
@@ -112,7 +134,9 @@ def local_polynomial_frf(inputs: Sequence[np.ndarray], output: np.ndarray,
                          frequency_min_Hz: float = 0.0,
                          frequency_max_Hz: Optional[float] = None,
                          input_units: Sequence[str] = (),
-                         output_unit: str = '') -> List[FrequencyResponseData]:
+                         output_unit: str = '',
+                         excitation: Optional[Sequence[Optional[np.ndarray]]] = None
+                         ) -> List[FrequencyResponseData]:
     """
     Estimate the FRF of each input to the output with the local polynomial method.
 
@@ -136,6 +160,10 @@ def local_polynomial_frf(inputs: Sequence[np.ndarray], output: np.ndarray,
         Units of the inputs (for the results' units).
     output_unit : str
         Unit of the output.
+    excitation : sequence of (ndarray or None), optional
+        Per input, its excited lines (sparse) or None (broadband), as
+        :func:`detect_excitation` gives them for the same records; default: detected here (a
+        caller estimating at many bands of one record detects once).
 
     Returns
     -------
@@ -169,7 +197,13 @@ def local_polynomial_frf(inputs: Sequence[np.ndarray], output: np.ndarray,
     n0 = auto_half_width(n_in, degree) if half_width is None else int(half_width)
     # A sparse input whose excited lines are close enough that a window holds degree + 1 of
     # them is served by the ordinary LPM (its G polynomial rests on them).
-    sparse = [excited_lines(U[i], n0) for i in range(n_in)]
+    if excitation is None:
+        sparse = [excited_lines(U[i], n0) for i in range(n_in)]
+    else:
+        if len(excitation) != n_in:
+            raise IdentificationError(f'LPM: excitation names {len(excitation)} inputs, '
+                                      f'the records {n_in}')
+        sparse = [None if e is None else np.asarray(e, dtype=int) for e in excitation]
     spacing = [int(np.median(np.diff(e))) if e is not None and e.size > 1 else 0 for e in sparse]
     sparse = [e if e is not None and (degree + 1) * sp > 2 * n0 + 1 else None
               for e, sp in zip(sparse, spacing)]

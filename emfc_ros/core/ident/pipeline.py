@@ -41,7 +41,7 @@ from emfc_ros.core.ident.balance_result import (BalanceGreyboxResult, greybox_di
 from emfc_ros.core.ident.errors import IdentificationError
 from emfc_ros.core.ident.frf import estimate_frf, FrequencyResponseData
 from emfc_ros.core.ident.hold import hold_factor
-from emfc_ros.core.ident.local_polynomial import local_polynomial_frf
+from emfc_ros.core.ident.local_polynomial import detect_excitation, local_polynomial_frf
 from emfc_ros.core.ident.mimo import estimate_two_input_frf
 from emfc_ros.core.ident.pipeline_config import IdentificationConfig
 from emfc_ros.core.ident.plant import PLANT_KEYS, PlantConfigurationError
@@ -542,6 +542,8 @@ def _selected(cfg: Any, u: np.ndarray, y: np.ndarray, fs: float,
     if not freqs:
         return None
     values, stds, cohs, lines, requested = [], [], [], [], []
+    excitation = detect_excitation([u], degree=cfg.lpm_degree,
+                                   half_width=cfg.lpm_half_width_lines or None)
     for f in freqs:
         k = round(f / resolution)
         got = None
@@ -552,7 +554,8 @@ def _selected(cfg: Any, u: np.ndarray, y: np.ndarray, fs: float,
                                             half_width=cfg.lpm_half_width_lines or None,
                                             stride=1, frequency_min_Hz=(k - reach) * resolution,
                                             frequency_max_Hz=(k + reach) * resolution,
-                                            input_units=['N'], output_unit='m')
+                                            input_units=['N'], output_unit='m',
+                                            excitation=excitation)
                 break
             except IdentificationError:
                 continue
