@@ -11,7 +11,9 @@ shared VM hits all alike. The variants leave out, in the child process only:
   run in the job's own process before the time-domain fit, as before issue 14's seventh
   round, instead of in a plot worker during it (the same-run baseline of that change);
 - ``no_systematic``: the grey-box's type B propagation left out (issue 28: every known input
-  treated as exact), the same-run baseline of its cost (target: shipped <= 1.1 of it).
+  treated as exact), the same-run baseline of its cost (target: shipped <= 1.1 of it);
+- ``file_ratio``: the load changer's force scale not fitted (``greybox.free`` as before
+  issue 28 made the force constants' ratio a default), the same-run baseline of that change.
 
 A variant is a measurement of where the time goes, never a way to run the job
 (``no_greybox_figures`` leaves its report incomplete). Printed per variant: the process wall time
@@ -35,7 +37,7 @@ import tempfile
 import time
 from typing import Dict, List, Tuple
 
-VARIANTS = ('shipped', 'no_greybox_figures', 'probe_in_line', 'no_systematic')
+VARIANTS = ('shipped', 'no_greybox_figures', 'probe_in_line', 'no_systematic', 'file_ratio')
 
 CHILD = r"""
 import sys
@@ -53,6 +55,19 @@ def main():
     elif variant == 'no_systematic':
         from emfc_ros.core.ident import balance_fit
         balance_fit.components = lambda *args, **kwargs: []
+    elif variant == 'file_ratio':
+        import dataclasses
+
+        from emfc_ros.core.ident import balance_fit
+        fit_balance = balance_fit.fit_balance
+
+        def without_scale(setting, channels, sections, frf_jobs, modes, anti, gcfg, *args,
+                          **kwargs):
+            free = tuple(n for n in gcfg.free if n != 'load_changer_force_scale')
+            return fit_balance(setting, channels, sections, frf_jobs, modes, anti,
+                               dataclasses.replace(gcfg, free=free), *args, **kwargs)
+
+        balance_fit.fit_balance = without_scale
     elif variant == 'no_greybox_figures':
         from emfc_ros.core.report import background, writer
         step_jobs, report_jobs = background.step_jobs, background.report_jobs
@@ -104,13 +119,16 @@ def run(variant: str, workdir: Path) -> Tuple[float, float, int]:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0].strip())
     parser.add_argument('--rounds', type=int, default=5, help='runs of each variant')
+    parser.add_argument('--variants', nargs='*', choices=VARIANTS[1:], default=VARIANTS[1:],
+                        help='the variants to compare with shipped (default all)')
     args = parser.parse_args(argv)
+    variants = ('shipped',) + tuple(args.variants)
     workdir = Path(tempfile.mkdtemp(prefix='ab_main_job-'))
-    results: Dict[str, List[Tuple[float, float, int]]] = {v: [] for v in VARIANTS}
+    results: Dict[str, List[Tuple[float, float, int]]] = {v: [] for v in variants}
     try:
         run('shipped', workdir)             # numba's cache and the page cache warm
         for k in range(args.rounds):
-            order = VARIANTS if k % 2 == 0 else VARIANTS[::-1]
+            order = variants if k % 2 == 0 else variants[::-1]
             for variant in order:
                 results[variant].append(run(variant, workdir))
                 wall, cpu, rc = results[variant][-1]
@@ -128,7 +146,7 @@ def main(argv=None) -> int:
               f'({min(walls):.2f}-{max(walls):.2f}), machine CPU median '
               f'{statistics.median(cpus):5.2f} s ({min(cpus):.2f}-{max(cpus):.2f})')
     base = statistics.median(w for w, _, _ in results['shipped'])
-    for variant in VARIANTS[1:]:
+    for variant in variants[1:]:
         other = statistics.median(w for w, _, _ in results[variant])
         print(f'{variant}: {base - other:+.2f} s of the shipped median wall '
               f'({other / base:.2f} of it)')
