@@ -66,8 +66,8 @@ def excited_lines(spectrum: np.ndarray, half_width: int) -> Optional[np.ndarray]
     -------
     ndarray of int or None
         Indices of the lines standing :data:`SPARSE_CONTRAST` above their window's median
-        (and above :data:`SPARSE_FLOOR` of the largest)
-        when they carry :data:`SPARSE_POWER_FRACTION` of the power (DC excluded), else None.
+        (and above :data:`SPARSE_FLOOR` of the largest) when they carry
+        :data:`SPARSE_POWER_FRACTION` of the power (DC excluded), else None.
     """
     from scipy.ndimage import median_filter
 
@@ -195,8 +195,6 @@ def local_polynomial_frf(inputs: Sequence[np.ndarray], output: np.ndarray,
     Y = np.fft.rfft(y) * scale
     U = np.array([np.fft.rfft(u) * scale for u in us])
     n0 = auto_half_width(n_in, degree) if half_width is None else int(half_width)
-    # A sparse input whose excited lines are close enough that a window holds degree + 1 of
-    # them is served by the ordinary LPM (its G polynomial rests on them).
     if excitation is None:
         sparse = [excited_lines(U[i], n0) for i in range(n_in)]
     else:
@@ -204,6 +202,8 @@ def local_polynomial_frf(inputs: Sequence[np.ndarray], output: np.ndarray,
             raise IdentificationError(f'LPM: excitation names {len(excitation)} inputs, '
                                       f'the records {n_in}')
         sparse = [None if e is None else np.asarray(e, dtype=int) for e in excitation]
+    # A sparse input whose excited lines are close enough that a window holds degree + 1 of
+    # them is served by the ordinary LPM (its G polynomial rests on them).
     spacing = [int(np.median(np.diff(e))) if e is not None and e.size > 1 else 0 for e in sparse]
     sparse = [e if e is not None and (degree + 1) * sp > 2 * n0 + 1 else None
               for e, sp in zip(sparse, spacing)]
@@ -231,6 +231,7 @@ def local_polynomial_frf(inputs: Sequence[np.ndarray], output: np.ndarray,
     k_lo = max(1, int(np.ceil(float(frequency_min_Hz) / resolution)))
     k_hi = min(n_lines - 1, int(np.floor(f_max / resolution)))
     dense = np.arange(k_lo, k_hi + 1, step)
+    units = list(input_units) + [''] * (n_in - len(input_units))
     solved = {}
     out = []
     for i in range(n_in):
@@ -246,7 +247,6 @@ def local_polynomial_frf(inputs: Sequence[np.ndarray], output: np.ndarray,
                 raise IdentificationError(f'LPM: no line in [{frequency_min_Hz}, {f_max}] Hz')
             solved[key] = _solve(Y, U, lines, n, degrees, degree, dof)
         g_all, std_all, coherence = solved[key]
-        units = list(input_units) + [''] * (n_in - len(input_units))
         details = {'degree': int(degrees[i]), 'half_width_lines': int(n),
                    'stride_lines': int(step), 'dof': int(dof),
                    'resolution_Hz': float(resolution),
