@@ -41,7 +41,7 @@ from emfc_ros.core.control.loop_config import loop_config
 from emfc_ros.core.device.auth import load_key_file
 from emfc_ros.core.device.emulator import (check_bind_host, DeviceEmulator, Faults,
                                            REFUSED_COUNTERS)
-from emfc_ros.core.device.sim_backend import load_parameters
+from emfc_ros.core.model.balance_file import load_balance
 from emfc_ros.core.weighing.profiles import parse_load_schedule
 
 PROG = 'emfc-device-emulator'
@@ -133,7 +133,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         if not 0 <= args.port <= 65535:
             raise ValueError(f'--port must be in [0, 65535], got {args.port}')
         faults = Faults.parse(args.faults)
-        params = load_parameters(args.config)
+        params = load_balance(args.config)
         options = {'load_mass_kg': _load_mass_kg(args.load_mass_kg, params,
                                                  args.load_changer_coupled),
                    'load_changer_coupled': bool(args.load_changer_coupled),

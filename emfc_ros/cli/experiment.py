@@ -30,7 +30,7 @@ from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import yaml
 
-from emfc_ros.core.errors import ConfigError
+from emfc_ros.core.errors import ConfigError, EmfcError
 from emfc_ros.core.heap import COMMAND_HEAP
 from emfc_ros.core.paths import config_file
 from emfc_ros.core.run_plan import load_plan, runner_state_wall_rate_Hz, RunPlan
@@ -84,7 +84,12 @@ class Phases:
 
 
 class RunInterrupted(KeyboardInterrupt):
-    """Ctrl-C (SIGINT) stopped the run."""
+    """
+    Ctrl-C (SIGINT) stopped the run.
+
+    Not an :class:`~emfc_ros.core.errors.EmfcError`: an interrupt, not an error, so that no
+    ``except Exception`` (the bag reader's, the warm-up's) swallows it.
+    """
 
 
 class CtrlC:
@@ -335,7 +340,7 @@ def interpreted_warning(params: Any, rate: float, total: int, load_kg: float,
             f'(pip install numba: about 1 s each)')
 
 
-class ExperimentFault(RuntimeError):
+class ExperimentFault(EmfcError, RuntimeError):
     """The device did not apply the excitation as commanded (a latched fault)."""
 
 

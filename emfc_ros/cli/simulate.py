@@ -37,6 +37,7 @@ import warnings
 
 import numpy as np
 
+from emfc_ros.core.errors import EmfcError
 from emfc_ros.core.model.parameters import BalanceParameters
 from emfc_ros.core.sim.simulator import HOLDS, Simulator
 
@@ -46,7 +47,7 @@ TIME_FORMAT = '%.12f'
 VALUE_FORMAT = '%.17g'
 
 
-class ExcitationFileError(ValueError):
+class ExcitationFileError(EmfcError, ValueError):
     """The excitation file is unreadable or malformed."""
 
 

@@ -234,10 +234,10 @@ class _Session:
     def _bridge_parameters(self, host: str, port: int) -> Dict[str, Any]:
         from emfc_ros.core.control.loop_config import CurrentChannelConfig, LoopConfig
         from emfc_ros.core.device.backend import default_input_channel
-        from emfc_ros.core.device.sim_backend import load_parameters
+        from emfc_ros.core.model.balance_file import load_balance
         from emfc_ros.core.sim.hold_point import hold_point
         from emfc_ros.core.sim.resolution import simulator_resolution
-        params = load_parameters()
+        params = load_balance()
         currents = [hold_point(params, m).currents_A[0] for m in (0.0, LoopConfig().max_load_kg)]
         offset, scale = precise_current_window(currents)
         position = default_input_channel('position_m', params)

@@ -1,11 +1,24 @@
 """
-Error classes of the numerical core, one per concern.
+Error classes of the numerical core, one per concern, and the package's error root.
 
-Each subclasses the matching builtin so callers may catch either.
+Every error class of emfc_ros subclasses :class:`EmfcError` and the matching builtin, so
+callers may catch either. This module imports nothing from emfc_ros.
 """
 
 
-class ConfigError(ValueError):
+class EmfcError(Exception):
+    """
+    The root of every error the package raises on purpose.
+
+    Each concrete class also subclasses the matching builtin (:class:`ValueError`,
+    :class:`OSError`, :class:`RuntimeError`...), so callers may catch either: a node catches
+    ``EmfcError`` for everything emfc_ros refuses, old code keeps ``except ValueError``.
+    Warnings (subclasses of :class:`Warning`) and interrupts (subclasses of
+    :class:`KeyboardInterrupt`, which ``except Exception`` must not catch) do not subclass it.
+    """
+
+
+class ConfigError(EmfcError, ValueError):
     """
     A configuration value is missing, of the wrong type or out of range.
 
@@ -18,13 +31,13 @@ class ConfigError(ValueError):
         super().__init__(f'{key}: {problem}')
 
 
-class SignalError(ValueError):
+class SignalError(EmfcError, ValueError):
     """A signal cannot be generated as specified."""
 
 
-class WaveformFileError(ValueError):
+class WaveformFileError(EmfcError, ValueError):
     """A waveform file (CSV or NPY) is unreadable or fails validation."""
 
 
-class BlockError(ValueError):
+class BlockError(EmfcError, ValueError):
     """A sample block does not follow the block convention."""

@@ -13,13 +13,15 @@ from __future__ import annotations
 import json
 from typing import Any, Union
 
+from emfc_ros.core.errors import EmfcError
+
 #: Largest document accepted [bytes].
 MAX_JSON_BYTES = 4 * 2 ** 20
 #: Deepest nesting of arrays and objects accepted.
 MAX_JSON_DEPTH = 64
 
 
-class JsonRefused(ValueError):
+class JsonRefused(EmfcError, ValueError):
     """A JSON text is malformed, too large or nested too deep."""
 
 

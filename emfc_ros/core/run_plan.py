@@ -36,7 +36,6 @@ BRIDGE_KEYS = ('backend', 'parameters_file', 'parameters', 'start_emulator', 'em
                'balance_file', 'load_mass_kg', 'load_changer_coupled', 'pacing',
                'window_blocks', 'lead_blocks', 'settle_s')
 EMULATOR_KEYS = ('host', 'port', 'channels', 'seed', 'noise', 'quantisation')
-BRIDGE_BACKENDS = ('sim', 'udp', 'replay')
 BRIDGE_PACINGS = ('consumer', 'wall')
 #: daq_bridge parameters the plan has its own keys for.
 BRIDGE_OWN_KEYS = {'balance_file': 'run.bridge.balance_file',
@@ -543,6 +542,7 @@ def bridge_plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
         what is allowed.
     """
     from emfc_ros.core.device.backend import DEFAULT_INPUTS
+    from emfc_ros.core.device import registry
     from emfc_ros.core.device.emulator import check_bind_host
     from emfc_ros.core.device.errors import DeviceConfigError
 
@@ -565,13 +565,15 @@ def bridge_plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
             raise ConfigError(origin[name], f'set by the plan: use {own}')
     params.pop('autostart', None)       # the runner starts the bridge once all is up
     default_backend = params.pop('backend', 'sim')
-    backend = get_str(cfg, 'backend', path, default=default_backend, choices=BRIDGE_BACKENDS)
+    backend = get_str(cfg, 'backend', path, default=default_backend,
+                      choices=list(registry.names()))
     if 'backend' in cfg and default_backend != backend and 'backend' in origin:
         raise ConfigError(f'{path}.backend', f'{backend!r} differs from '
                           f'{origin["backend"]} = {default_backend!r}')
-    if backend == 'replay':
-        raise ConfigError(f'{path}.backend', "'replay' re-publishes a recorded bag and applies "
-                          "no excitation: an experiment needs 'udp' (a device) or 'sim'")
+    if not registry.entry(backend).cls.applies_excitation:
+        applying = [n for n, e in registry.BACKENDS.items() if e.cls.applies_excitation]
+        raise ConfigError(f'{path}.backend', f'{backend!r} applies no excitation (it '
+                          f're-publishes a recording): an experiment needs one of {applying}')
 
     rate = float(experiment.get('sample_rate_Hz', 0.0))
     if 'sample_rate_Hz' in params:

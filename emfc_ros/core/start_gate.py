@@ -20,11 +20,13 @@ from dataclasses import dataclass, field
 import json
 from typing import Dict, Iterable, Sequence, Tuple
 
+from emfc_ros.core.errors import EmfcError
+
 #: Gate kinds (the generator's ``start_gate`` parameter; ``auto`` is resolved by the node).
 GATES = ('applier', 'subscribers', 'none')
 
 
-class ReadinessError(ValueError):
+class ReadinessError(EmfcError, ValueError):
     """A readiness announcement that does not parse."""
 
 

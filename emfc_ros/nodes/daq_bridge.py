@@ -57,20 +57,19 @@ from std_srvs.srv import Trigger
 
 from emfc_ros.core.blocks import Block, Channel, Continuity, SequenceTracker, StreamDescription
 from emfc_ros.core.device import protocol
-from emfc_ros.core.device.backend import (check_generator_range, create_backend,
-                                          DEFAULT_INPUTS, DEFAULT_OUTPUTS,
-                                          device_config_from_mapping, DeviceConfig)
+from emfc_ros.core.device import registry
+from emfc_ros.core.device.backend import (check_generator_range, DEFAULT_INPUTS,
+                                          DEFAULT_OUTPUTS, DeviceBackend, DeviceConfig)
 from emfc_ros.core.device.clock import device_index_at, earliest_start_ns
 from emfc_ros.core.device.errors import DeviceConfigError, DeviceError, DeviceRefusedError
 from emfc_ros.core.device.faults import describe, Fault, FaultMonitor
 from emfc_ros.core.device.function_generator import GeneratorSpec, make_signal
 from emfc_ros.core.device.jobs import DeviceJobs
-from emfc_ros.core.device.sim_backend import load_parameters
-from emfc_ros.core.device.udp_backend import INTRUSION_COUNTERS
 from emfc_ros.core.errors import BlockError, ConfigError
 from emfc_ros.core.excitation_queue import DROPPED, ExcitationQueue, JumpGuard
+from emfc_ros.core.model.actuation import coil_setpoint_for_force_V
+from emfc_ros.core.model.balance_file import load_balance
 from emfc_ros.core.pan_load import declared_pan_load
-from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V
 from emfc_ros.core.start_gate import readiness_text
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
@@ -78,9 +77,7 @@ from emfc_ros.nodes.convert import (
 from emfc_ros.nodes.params import declare_table, refuse_unknown
 from emfc_ros.nodes.spin import node_main
 
-BACKEND_NAMES = ('sim', 'udp', 'replay')
 EXCITATION_MODES = ('stream', 'function_generator')
-REPLAY_PACINGS = ('receive_time', 'sample_clock', 'fast')
 JOINT = 'lever'
 STATE_QOS = QoSProfile(depth=1000)
 LATENCY_WINDOW = 20000
@@ -92,8 +89,7 @@ _UNSET_STRINGS = Parameter.Type.STRING_ARRAY
 _UNSET_DOUBLES = Parameter.Type.DOUBLE_ARRAY
 
 PARAMETERS: Dict[str, Tuple[Any, str]] = {
-    'backend': ('sim', "device back-end: 'sim' (simulated balance in process), 'udp' (a "
-                       "device or the emulator over UDP), 'replay' (a recorded bag)"),
+    'backend': ('sim', registry.backend_summary()),
     'autostart': (True, 'configure and start the device when the node comes up'),
     'min_subscribers': (0, 'autostart: start the device (or the replay) and subscribe to the '
                            'excitation only once this many subscriptions to measurements have '
@@ -135,26 +131,6 @@ PARAMETERS: Dict[str, Tuple[Any, str]] = {
     'diagnostics_period_s': (1.0, 'period of /diagnostics [s], 0.05 to 60'),
     'publisher_depth': (100, 'history depth of the block publishers [blocks], 1 to 100000: '
                              'a burst after a stall longer than this overruns slow readers'),
-    'udp.device_host': ('127.0.0.1', 'IP address of the device'),
-    'udp.device_port': (5005, 'UDP port of the device, 1 to 65535'),
-    'udp.bind_host': ('127.0.0.1', 'local IP address to bind'),
-    'udp.bind_port': (0, 'local UDP port, 0: any free one'),
-    'udp.heartbeat_period_s': (0.1, 'heartbeat period [s], (0, 60]'),
-    'udp.request_timeout_s': (0.2, 'control request timeout before a retry [s], (0, 60]'),
-    'udp.device_timeout_s': (0.5, 'silence after which the device counts as lost (a '
-                                  'latched fault) and is reconnected [s], (0, 60]'),
-    'udp.reorder_window': (8, 'frames the reorder buffer spans before declaring a gap'),
-    'udp.reorder_timeout_s': (0.2, 'longest wait for a missing frame [s], (0, 60]'),
-    'udp.setpoint_format': ('float64', "setpoint frame format: 'float64' or 'int16'"),
-    'udp.key_file': ('', 'pre-shared key file (hex text, at least 32 hex digits, mode 600) '
-                         'to authenticate every datagram with HMAC-SHA256; the device needs '
-                         'the same key; empty: no authentication'),
-    'replay.bag': ('', 'replay: the bag folder'),
-    'replay.topic': ('', "replay: block topic to replay; empty: the bag's */measurements"),
-    'replay.pacing': ('receive_time', "replay: 'receive_time' (the original block timing), "
-                                      "'sample_clock' or 'fast'"),
-    'replay.speed': (1.0, 'replay: speed factor [1], > 0'),
-    'replay.loop': (False, 'replay: start over in a new epoch after the last block'),
     'pan.load_mass_kg': (-1.0, 'mass on the pan during the experiment [kg], 0 to 100, '
                                'published in the measurement description for the '
                                'identification (emfc-identify reads it); negative: not '
@@ -162,10 +138,8 @@ PARAMETERS: Dict[str, Tuple[Any, str]] = {
     'pan.load_changer_coupled': ('', "'true' or 'false': whether the load changer's moving "
                                      'mass rides on the pan (published like '
                                      "pan.load_mass_kg); '': not declared"),
-    'sim.seed': (0, 'sim: noise seed, >= 0'),
-    'sim.load_mass_kg': (0.0, 'sim: mass on the pan [kg], 0 to 2'),
-    'sim.load_changer_coupled': (False, "sim: the load changer's moving mass rides on the "
-                                        'pan'),
+    # every back-end's options: '<backend>.<option>' (core/device/registry.py)
+    **registry.parameter_table(),
 }
 
 
@@ -175,11 +149,7 @@ LIMITS = {'sample_rate_Hz': (0.0, 1e7), 'block_size': (1, 65535),
           'device_watchdog_timeout_s': (0.0, 3600.0), 'excitation_lead_s': (0.0, 10.0),
           'watchdog_timeout_s': (0.0, 3600.0), 'command_timeout_s': (0.0, 60.0),
           'diagnostics_period_s': (0.05, 60.0), 'publisher_depth': (1, 100000),
-          'udp.device_port': (1, 65535), 'udp.bind_port': (0, 65535),
-          'udp.heartbeat_period_s': (0.0, 60.0), 'udp.request_timeout_s': (0.0, 60.0),
-          'udp.device_timeout_s': (0.0, 60.0), 'udp.reorder_timeout_s': (0.0, 60.0),
-          'sim.seed': (0, 2 ** 63 - 1), 'sim.load_mass_kg': (0.0, 2.0),
-          'min_subscribers': (0, 100)}
+          'min_subscribers': (0, 100), **registry.parameter_limits()}
 
 #: Function-generator fields (``funcgen.<output>.<field>``) and their defaults.
 FUNCGEN_FIELDS = {
@@ -277,7 +247,7 @@ class DaqBridgeNode(Node):
         self._error = ''
         self._last_error = ''
         self._state = 'idle'
-        self._backend: Any = None
+        self._backend: Optional[DeviceBackend] = None
         self._config: Optional[DeviceConfig] = None
         self._pan: Dict[str, Any] = {}
         self._specs: List[GeneratorSpec] = []
@@ -334,7 +304,7 @@ class DaqBridgeNode(Node):
                           clock=steady_clock())
         self.create_timer(0.01, self._watchdog_tick, clock=steady_clock())
         self._sim_timer = None
-        if getattr(self._backend, 'name', '') == 'sim':
+        if self._backend is not None and self._backend.host_paced:
             # Created once: the worker thread that starts and stops never creates timers.
             block = self._config.block_size
             period = min(0.02, max(0.001, 0.5 * block / self._rate))
@@ -441,8 +411,8 @@ class DaqBridgeNode(Node):
 
     def _readiness_values(self) -> Tuple[bool, str]:
         """Whether excitation arriving now is applied, and if not what the bridge waits for."""
-        if getattr(self._backend, 'name', '') == 'replay':
-            return False, 'applies no excitation (replay back-end)'
+        if self._backend is not None and not self._backend.applies_excitation:
+            return False, f'applies no excitation ({self._backend.name} back-end)'
         if self._holding:
             pub = self._pub.get('measurements')
             matched = pub.get_subscription_count() if pub is not None else 0
@@ -489,11 +459,16 @@ class DaqBridgeNode(Node):
             cfg[key] = value
         return cfg
 
+    def _backend_mapping(self) -> Dict[str, Any]:
+        """The registry's mapping (core/device/registry.py) from the node's parameters."""
+        cfg: Dict[str, Any] = {'backend': str(self._param('backend')), **self._device_mapping()}
+        for entry in registry.BACKENDS.values():
+            cfg[entry.name] = {o.key: self._param(f'{entry.name}.{o.key}')
+                               for o in entry.options}
+        return cfg
+
     def _build(self) -> None:
         """Build the back-end, the device configuration and the generator specs."""
-        name = str(self._param('backend'))
-        if name not in BACKEND_NAMES:
-            raise ConfigError('backend', f'must be one of {list(BACKEND_NAMES)}, got {name!r}')
         mode = str(self._param('excitation_mode'))
         if mode not in EXCITATION_MODES:
             raise ConfigError('excitation_mode', f'must be one of {list(EXCITATION_MODES)}, '
@@ -505,45 +480,9 @@ class DaqBridgeNode(Node):
             if not low < value <= high:
                 raise ConfigError(key, f'must be in ({low}, {high}], got {value}')
         balance = str(self._param('balance_file'))
-        self._balance = load_parameters(balance or None)
-        if name == 'replay':
-            pacing = str(self._param('replay.pacing'))
-            if pacing not in REPLAY_PACINGS:
-                raise ConfigError('replay.pacing', f'must be one of {list(REPLAY_PACINGS)}, '
-                                                   f'got {pacing!r}')
-            backend = create_backend('replay', bag=str(self._param('replay.bag')),
-                                     topic=str(self._param('replay.topic')), pacing=pacing,
-                                     speed=float(self._param('replay.speed')),
-                                     loop=bool(self._param('replay.loop')))
-            config = backend.recorded_config
-        else:
-            config = device_config_from_mapping(self._device_mapping())
-            if name == 'udp':
-                port = int(self._param('udp.device_port'))
-                if not 1 <= port <= 65535:
-                    raise ConfigError('udp.device_port', f'must be in [1, 65535], got {port}')
-                backend = create_backend(
-                    'udp', device_address=(str(self._param('udp.device_host')), port),
-                    bind_address=(str(self._param('udp.bind_host')),
-                                  int(self._param('udp.bind_port'))),
-                    heartbeat_period_s=float(self._param('udp.heartbeat_period_s')),
-                    request_timeout_s=float(self._param('udp.request_timeout_s')),
-                    device_timeout_s=float(self._param('udp.device_timeout_s')),
-                    reorder_window=int(self._param('udp.reorder_window')),
-                    reorder_timeout_s=float(self._param('udp.reorder_timeout_s')),
-                    setpoint_format=str(self._param('udp.setpoint_format')),
-                    key_file=str(self._param('udp.key_file')) or None)
-            else:
-                load = float(self._param('sim.load_mass_kg'))
-                if not 0.0 <= load <= 2.0:
-                    raise ConfigError('sim.load_mass_kg', f'must be in [0, 2] kg, got {load}')
-                seed = int(self._param('sim.seed'))
-                if seed < 0:
-                    raise ConfigError('sim.seed', f'must be >= 0, got {seed}')
-                coupled = bool(self._param('sim.load_changer_coupled'))
-                backend = create_backend('sim', params=self._balance, seed=seed,
-                                         simulator_options={'load_mass_kg': load,
-                                                            'load_changer_coupled': coupled})
+        self._balance = load_balance(balance or None)
+        backend, config = registry.backend_from_mapping(self._backend_mapping(),
+                                                        balance=self._balance)
         self._pan = declared_pan_load(float(self._param('pan.load_mass_kg')),
                                       str(self._param('pan.load_changer_coupled')))
         rate = float(self._param('state_rate_Hz'))
@@ -560,7 +499,7 @@ class DaqBridgeNode(Node):
                                                  f'per input), got {noise}')
         self._resolution = {c.name: {'step': abs(float(c.scale)), 'noise_rms': v}
                             for c, v in zip(config.inputs, noise)}
-        if name == 'replay':
+        if backend.recorded_resolution is not None:
             # the recorded values are not codes: what the recording said, or nothing
             self._resolution = backend.recorded_resolution
         self._backend = backend
@@ -723,7 +662,7 @@ class DaqBridgeNode(Node):
             for block, samples, clipped in early:
                 self._take_excitation(block, samples, clipped)
         self._publish_descriptions()
-        if getattr(self._backend, 'name', '') != 'sim':      # sim: the timer reads
+        if not self._backend.host_paced:        # host-paced: the timer reads
             self._reader = threading.Thread(target=self._read_loop, daemon=True,
                                             name='daq-bridge-reader')
             self._reader.start()
@@ -784,7 +723,7 @@ class DaqBridgeNode(Node):
                 self._reader_stop.wait(0.1)
                 continue
             if block is None:
-                if getattr(backend, 'finished', False):
+                if backend.finished:
                     self._replay_done(backend)
                     return
                 continue
@@ -796,14 +735,14 @@ class DaqBridgeNode(Node):
                 self._counts['reader_errors'] += 1
                 self._last_error = f'publishing a block: {exc}'
 
-    def _replay_done(self, backend: Any) -> None:
-        """The replay published its last block: state done (~/status), said once."""
+    def _replay_done(self, backend: DeviceBackend) -> None:
+        """A finite source (a replay) published its last block: state done, said once."""
         with self._lock:
             if self._state != 'running':
                 return
             self._set_state('done')
-        self.get_logger().info(f'replay done: all {backend.n_blocks} recorded blocks '
-                               'published (~/start replays again in a new epoch)')
+        self.get_logger().info(f'{backend.name} done: every block published (~/start '
+                               'starts again in a new epoch)')
 
     def _sim_tick(self) -> None:
         if self._state != 'running':
@@ -1186,7 +1125,7 @@ class DaqBridgeNode(Node):
             return
         new = self._monitor.observe(self._health(), self._device_index_now(),
                                     self._last_end or 0,
-                                    float(getattr(self._backend, 'device_timeout_s', 0.5)))
+                                    float(self._backend.silence_timeout_s))
         self._latch(new)
         if self._tripped or self._estop:
             return
@@ -1362,7 +1301,7 @@ class DaqBridgeNode(Node):
         channels = tuple(Channel(c.name, c.unit, f'device input {i}: code * {c.scale:g} + '
                                                  f'{c.offset:g} {c.unit}')
                          for i, c in enumerate(cfg.inputs))
-        extra = {'backend': getattr(self._backend, 'name', ''), 'excitation_mode': self._mode,
+        extra = {'backend': self._backend.name, 'excitation_mode': self._mode,
                  'start_monotonic_ns': int(self._anchor_ns),
                  'excitation_epoch': self._exc_tracker.epoch,
                  'excitation_offset_samples': self._offset,
@@ -1371,9 +1310,7 @@ class DaqBridgeNode(Node):
                  'faults': [f.to_dict() for f in self._monitor.faults],
                  'resolution': self._resolution}
         extra.update(self._pan)
-        if getattr(self._backend, 'name', '') == 'replay':
-            extra['replay_bag'] = self._backend.bag
-            extra['replay_topic'] = self._backend.topic
+        extra.update(self._backend.description_extra())
         epoch = self._epoch or 0
         for topic, pub in self._pub_desc.items():
             rows = range(len(channels)) if topic == 'measurements' else \
@@ -1447,7 +1384,8 @@ class DaqBridgeNode(Node):
             'reconnects', 'excitation_gaps', 'excitation_duplicates',
             'excitation_reordered', 'excitation_overlaps', 'excitation_malformed',
             'published_gaps', 'malformed_blocks'))
-        intrusions = {k: int(values.get(k, 0) or 0) for k in INTRUSION_COUNTERS}
+        names = self._backend.intrusion_counters if self._backend is not None else ()
+        intrusions = {k: int(values.get(k, 0) or 0) for k in names}
         level = DiagnosticStatus.OK
         message = 'ok'
         if defects or values['clamped_samples']:

@@ -79,10 +79,11 @@ from emfc_ros.core.config import unflatten
 from emfc_ros.core.control.loop_config import loop_config, loop_timing
 from emfc_ros.core.errors import BlockError, ConfigError
 from emfc_ros.core.excitation_queue import DROPPED, ExcitationQueue
+from emfc_ros.core.model.actuation import coil_setpoint_for_force_V
 from emfc_ros.core.model.parameters import BalanceParameters
 from emfc_ros.core.paths import config_file
 from emfc_ros.core.sim.channels import channel_names, channel_units, MEASURED, REFERENCE
-from emfc_ros.core.sim.monitor import coil_setpoint_for_force_V, saturation_counts
+from emfc_ros.core.sim.monitor import saturation_counts
 from emfc_ros.core.sim.resolution import simulator_resolution
 from emfc_ros.core.sim.simulator import Simulator
 from emfc_ros.core.sim.state_rate import StateRateLimiter

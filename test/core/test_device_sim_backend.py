@@ -36,7 +36,8 @@ def _started(backend, block_size=400, **kwargs):
 
 
 def test_table_picks_backends_by_name_and_refuses_unknown_names():
-    assert BACKENDS == {'sim': SimBackend, 'udp': UdpBackend, 'replay': ReplayBackend}
+    assert {name: e.cls for name, e in BACKENDS.items()} == {
+        'sim': SimBackend, 'udp': UdpBackend, 'replay': ReplayBackend}
     sim = create_backend('sim', seed=1)
     assert isinstance(sim, SimBackend) and isinstance(sim, DeviceBackend)
     with pytest.raises(DeviceConfigError, match="'fpga'"):
@@ -189,7 +190,8 @@ def test_invalid_configurations_are_refused_with_a_reason(backend):
 
 
 def test_backend_and_configuration_from_a_mapping_name_bad_keys():
-    from emfc_ros.core.device.backend import backend_from_mapping, device_config_from_mapping
+    from emfc_ros.core.device.backend import device_config_from_mapping
+    from emfc_ros.core.device.registry import backend_from_mapping
     from emfc_ros.core.errors import ConfigError
     sim, config = backend_from_mapping({'backend': 'sim', 'sim': {'seed': 3},
                                         'sample_rate_Hz': RATE_HZ, 'block_size': 250,
@@ -198,7 +200,8 @@ def test_backend_and_configuration_from_a_mapping_name_bad_keys():
     assert isinstance(sim, SimBackend) and config == default_device_config(
         RATE_HZ, 250, INPUTS[:4], safe_V=(0.1, 0.0))
     udp, _ = backend_from_mapping({'backend': 'udp', 'udp': {
-        'device_address': '127.0.0.1:5999', 'retries': 2, 'setpoint_format': 'int16'}})
+        'device_host': '127.0.0.1', 'device_port': 5999, 'retries': 2,
+        'setpoint_format': 'int16'}})
     try:
         assert isinstance(udp, UdpBackend) and udp.device_address == ('127.0.0.1', 5999)
         assert udp.retries == 2 and udp.setpoint_format == 'int16'
@@ -211,6 +214,9 @@ def test_backend_and_configuration_from_a_mapping_name_bad_keys():
                      ({'output_safe_V': [0.0]}, 'output_safe_V'),
                      ({'block_size': 0}, 'block_size'),
                      ({'backend': 'udp', 'udp': {'port': 1}}, 'udp.port'),
+                     ({'backend': 'udp', 'udp': {'device_port': 0}}, 'udp.device_port'),
+                     ({'backend': 'sim', 'balance_file': '/nonexistent.yaml'},
+                      'balance_file'),
                      ({'output_safe_V': [20.0, 0.0]}, 'safe_V')):
         with pytest.raises(ConfigError, match=key):
             backend_from_mapping(cfg, 'device' if key == 'safe_V' else '')
@@ -243,3 +249,43 @@ def test_the_emulated_device_can_run_the_controller_in_its_sample_loop():
     np.testing.assert_allclose(np.mean(samples[2, -2000:]), held_N, rtol=0, atol=2.5e-4)
     with pytest.raises(DeviceConfigError, match='unknown input'):
         SimBackend(seed=2).configure(default_device_config(RATE_HZ, 1000, names))
+
+
+def _documented_mapping():
+    """The configuration mapping shown in docs/device_protocol.md section 1."""
+    import pathlib
+    import re
+
+    import yaml
+    text = (pathlib.Path(__file__).resolve().parents[2] / 'docs' /
+            'device_protocol.md').read_text()
+    block = re.search(r'```yaml\n(backend: udp.*?)```', text, re.S)
+    assert block is not None, 'the mapping block is gone from docs/device_protocol.md'
+    return yaml.safe_load(block.group(1))
+
+
+def test_the_documented_mapping_builds_every_backend_with_its_documented_defaults():
+    """Every key of the docs' mapping is an option, at its default; it builds sim and udp."""
+    from emfc_ros.core.device.registry import backend_from_mapping
+    cfg = _documented_mapping()
+    for name, entry in BACKENDS.items():
+        assert cfg[name] == {o.key: o.default for o in entry.options}, name
+    udp, config = backend_from_mapping(cfg)
+    try:
+        assert isinstance(udp, UdpBackend) and udp.device_address == ('127.0.0.1', 5005)
+        assert config.input_names == tuple(cfg['inputs']) and config.block_size == 1000
+    finally:
+        udp.close()
+    sim, _ = backend_from_mapping(dict(cfg, backend='sim', sim={'seed': 4}))
+    assert isinstance(sim, SimBackend) and sim.host_paced and sim.applies_excitation
+
+
+def test_every_backend_declares_what_the_bridge_asks_of_it():
+    """The node reads these instead of the name (test_layers checks it never branches)."""
+    for name, entry in BACKENDS.items():
+        for attribute in ('host_paced', 'applies_excitation', 'intrusion_counters'):
+            assert hasattr(entry.cls, attribute), (name, attribute)
+        assert entry.cls.name == name
+    assert not BACKENDS['replay'].cls.applies_excitation
+    assert BACKENDS['sim'].cls.host_paced and not BACKENDS['udp'].cls.host_paced
+    assert 'foreign' in BACKENDS['udp'].cls.intrusion_counters

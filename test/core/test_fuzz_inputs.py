@@ -18,12 +18,13 @@ from emfc_ros.core import blocks
 from emfc_ros.core.blocks import Block
 from emfc_ros.core.device import protocol as proto
 from emfc_ros.core.device.auth import ReplayGuard, Signer
-from emfc_ros.core.device.backend import (backend_from_mapping, check_generator_range,
-                                          default_device_config, device_config_from_mapping)
+from emfc_ros.core.device.backend import (check_generator_range, default_device_config,
+                                          device_config_from_mapping)
 from emfc_ros.core.device.emulator import Faults
 from emfc_ros.core.device.errors import AuthenticationError, DeviceConfigError, ProtocolError
 from emfc_ros.core.device.faults import FaultMonitor, faults_from_extra
 from emfc_ros.core.device.function_generator import GeneratorSpec
+from emfc_ros.core.device.registry import backend_from_mapping
 from emfc_ros.core.errors import BlockError, ConfigError
 from emfc_ros.core.excitation_queue import ExcitationQueue
 from emfc_ros.core.json_text import JsonRefused, load_json_text

@@ -14,10 +14,12 @@ from typing import Dict, Optional, Sequence, Tuple
 
 from rosbags.typesys import get_types_from_msg, get_typestore, Stores
 
+from emfc_ros.core.errors import EmfcError
+
 _FIELD_TYPE = re.compile(r'^\s*([A-Za-z_][\w]*/[A-Za-z_]\w*)(\[[^\]]*\])?\s+\w', re.M)
 
 
-class MessageTypeError(LookupError):
+class MessageTypeError(EmfcError, LookupError):
     """A message type has no definition in the typestore or in any share/ folder."""
 
 

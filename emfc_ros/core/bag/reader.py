@@ -39,7 +39,7 @@ from emfc_ros.core.bag.errors import BagFormatError, StreamGapError
 from emfc_ros.core.bag.metadata import METADATA_FILE, read_metadata
 from emfc_ros.core.bag.scan import ChunkDamage, McapScan
 from emfc_ros.core.blocks import StreamDescription
-from emfc_ros.core.errors import BlockError
+from emfc_ros.core.errors import BlockError, EmfcError
 
 BLOCK_TYPE = 'std_msgs/msg/Float64MultiArray'
 DESCRIPTION_TYPE = 'std_msgs/msg/String'
@@ -51,7 +51,7 @@ class BagDamageWarning(UserWarning):
     """A bag had corrupt chunks: what they held was skipped (see the damage reports)."""
 
 
-class _SourceError(Exception):
+class _SourceError(EmfcError, RuntimeError):
     """The message source (rosbags) failed while reading: read the files chunk by chunk."""
 
 

@@ -9,8 +9,8 @@ device's own function generator; it returns measurement blocks as
 :class:`emfc_ros.core.blocks.Block` with exact first sample indices, never spanning a gap;
 and it counts every defect in :meth:`DeviceBackend.health`.
 
-Back-ends are chosen by name from configuration: ``create_backend('udp', device_address=...)``
-looks the name up in :data:`BACKENDS`.
+Back-ends are chosen by name in :mod:`emfc_ros.core.device.registry` (the only configuration
+path); this module imports none of them.
 """
 
 from __future__ import annotations
@@ -22,11 +22,11 @@ from typing import Any, Dict, Mapping, Optional, Protocol, runtime_checkable, Se
 import numpy as np
 
 from emfc_ros.core.blocks import Block
-from emfc_ros.core.config import (get_bool, get_float, get_float_list, get_int, get_mapping,
-                                  get_str, get_str_list, join, reject_unknown)
+from emfc_ros.core.config import get_float, get_float_list, get_int, get_str_list, join
 from emfc_ros.core.device.errors import DeviceConfigError
 from emfc_ros.core.device.function_generator import GeneratorSpec
 from emfc_ros.core.errors import ConfigError
+from emfc_ros.core.model.balance_file import load_balance
 
 #: Raw converter codes are signed 16-bit integers.
 CODE_MIN = -32768
@@ -338,9 +338,7 @@ def default_input_channel(name: str, params: Any = None) -> InputChannel:
         If the unit suffix is not one of ``_V``, ``_A``, ``_m``, ``_N``.
     """
     if params is None:
-        from emfc_ros.core.model.parameters import BalanceParameters
-        from emfc_ros.core.paths import config_file
-        params = BalanceParameters.load_yaml(config_file('balance_default.yaml'))
+        params = load_balance()
     conv = params.converters
     adc_lsb_V = 2.0 * conv.adc_range_V / 2.0 ** conv.adc_bits
     dac_lsb_V = 2.0 * conv.dac_range_V / 2.0 ** conv.dac_bits
@@ -402,7 +400,45 @@ class DeviceBackend(Protocol):
 
     Sample indices count from 0 at START on the device's sample clock; the epoch increments at
     every START (and at every reconnect of a network back-end).
+
+    Attributes
+    ----------
+    name : str
+        The registry name (:mod:`emfc_ros.core.device.registry`), published in the
+        measurement description.
+    host_paced : bool
+        True: the back-end makes a block only when asked (:meth:`read_block` does not wait),
+        so the host reads it on its own clock at the sample rate; False: blocks arrive on the
+        device's clock and a reader thread waits for them.
+    applies_excitation : bool
+        Whether setpoints written are applied to a balance (False: a recording).
+    silence_timeout_s : float
+        No block for this long while running counts as the device lost [s].
+    recorded_config : DeviceConfig or None
+        The configuration the back-end's data were taken with (a recording), used instead
+        of the configured one; None: the configured one.
+    recorded_resolution : dict or None
+        The recorded channels' resolution (``extra.resolution`` of a description); None:
+        the converter steps of the configuration.
+    finished : bool
+        True once a finite source has returned its last block.
+    intrusion_counters : tuple of str
+        Health counters of datagrams refused as not from the device, the session or the key
+        (a warning, not a stream defect).
     """
+
+    name: str
+    host_paced: bool
+    applies_excitation: bool
+    silence_timeout_s: float
+    recorded_config: Optional['DeviceConfig']
+    recorded_resolution: Optional[Dict[str, Any]]
+    finished: bool
+    intrusion_counters: Tuple[str, ...]
+
+    def description_extra(self) -> Dict[str, Any]:
+        """What the back-end adds to the measurement description's ``extra``."""
+        ...  # pragma: no cover
 
     def configure(self, config: DeviceConfig) -> None:
         """Send the configuration (device idle or stopped)."""
@@ -437,51 +473,10 @@ class DeviceBackend(Protocol):
         ...  # pragma: no cover
 
 
-# The back-ends import this module's dataclasses, so they are imported after them.
-from emfc_ros.core.device.sim_backend import SimBackend  # noqa: E402,I100,I202
-from emfc_ros.core.device.udp_backend import UdpBackend  # noqa: E402,I100
-from emfc_ros.core.device.replay_backend import ReplayBackend  # noqa: E402,I100,I202
-
-#: Back-ends by configuration name.
-BACKENDS: Dict[str, Any] = {'sim': SimBackend, 'udp': UdpBackend, 'replay': ReplayBackend}
-
-
-def create_backend(name: str, **options: Any) -> DeviceBackend:
-    """
-    Build a back-end by name.
-
-    Parameters
-    ----------
-    name : str
-        A key of :data:`BACKENDS`.
-    **options
-        Keyword arguments of the back-end's constructor.
-
-    Returns
-    -------
-    DeviceBackend
-        The back-end.
-
-    Raises
-    ------
-    DeviceConfigError
-        If the name is unknown.
-    """
-    try:
-        cls = BACKENDS[name]
-    except KeyError:
-        raise DeviceConfigError(f'backend must be one of {sorted(BACKENDS)}, got '
-                                f'{name!r}') from None
-    return cls(**options)
-
-
-CONFIG_KEYS = ('backend', 'sample_rate_Hz', 'block_size', 'watchdog_timeout_s', 'inputs',
-               'input_units', 'input_scales', 'input_offsets', 'outputs', 'output_min_V',
-               'output_max_V', 'output_safe_V', 'udp', 'sim')
-UDP_KEYS = ('device_address', 'bind_address', 'heartbeat_period_s', 'request_timeout_s',
-            'retries', 'device_timeout_s', 'reorder_window', 'reorder_timeout_s',
-            'setpoint_format', 'auto_reconnect')
-SIM_KEYS = ('seed', 'balance_config')
+#: Keys of :func:`device_config_from_mapping`.
+DEVICE_CONFIG_KEYS = ('sample_rate_Hz', 'block_size', 'watchdog_timeout_s', 'inputs',
+                      'input_units', 'input_scales', 'input_offsets', 'outputs',
+                      'output_min_V', 'output_max_V', 'output_safe_V')
 
 
 def _per_channel(cfg: Mapping[str, Any], key: str, path: str, n: int,
@@ -553,70 +548,3 @@ def device_config_from_mapping(cfg: Mapping[str, Any], path: str = '',
         return DeviceConfig(rate, block, inputs, outputs, watchdog)
     except DeviceConfigError as exc:
         raise ConfigError(path or 'device', str(exc)) from None
-
-
-def backend_from_mapping(cfg: Mapping[str, Any], path: str = '') -> Tuple['DeviceBackend',
-                                                                          DeviceConfig]:
-    """
-    Build the back-end named by ``backend`` and its configuration from a mapping.
-
-    ``backend`` is a key of :data:`BACKENDS` (default ``'sim'``); the nested mapping of the
-    same name holds the back-end's options: ``udp``: ``device_address`` (``'host:port'``),
-    ``bind_address``, ``heartbeat_period_s``, ``request_timeout_s``, ``retries``,
-    ``device_timeout_s``, ``reorder_window``, ``reorder_timeout_s``, ``setpoint_format``,
-    ``auto_reconnect``; ``sim``: ``seed``, ``balance_config`` (a balance YAML path). The rest
-    is :func:`device_config_from_mapping`.
-
-    Parameters
-    ----------
-    cfg : Mapping
-        The mapping.
-    path : str
-        Its dotted path, for messages.
-
-    Returns
-    -------
-    backend : DeviceBackend
-        The back-end (not yet configured).
-    config : DeviceConfig
-        The configuration to pass to ``backend.configure``.
-
-    Raises
-    ------
-    ConfigError
-        Naming the offending key and what is allowed.
-    """
-    reject_unknown(cfg, CONFIG_KEYS, path)
-    name = get_str(cfg, 'backend', path, default='sim', choices=sorted(BACKENDS))
-    sub_path = join(path, name)
-    sub = get_mapping(cfg, name, path, default={})
-    options: Dict[str, Any] = {}
-    if name == 'udp':
-        reject_unknown(sub, UDP_KEYS, sub_path)
-        options['device_address'] = get_str(sub, 'device_address', sub_path,
-                                            default='127.0.0.1:5005')
-        options['bind_address'] = get_str(sub, 'bind_address', sub_path,
-                                          default='127.0.0.1:0')
-        for key in ('heartbeat_period_s', 'request_timeout_s', 'device_timeout_s',
-                    'reorder_timeout_s'):
-            if key in sub:
-                options[key] = get_float(sub, key, sub_path, minimum=0.0, maximum=60.0,
-                                         min_exclusive=True)
-        for key, low in (('retries', 0), ('reorder_window', 1)):
-            if key in sub:
-                options[key] = get_int(sub, key, sub_path, minimum=low, maximum=1000)
-        if 'setpoint_format' in sub:
-            options['setpoint_format'] = get_str(sub, 'setpoint_format', sub_path,
-                                                 choices=('float64', 'int16'))
-        if 'auto_reconnect' in sub:
-            options['auto_reconnect'] = get_bool(sub, 'auto_reconnect', sub_path)
-    elif name == 'sim':
-        reject_unknown(sub, SIM_KEYS, sub_path)
-        options['seed'] = get_int(sub, 'seed', sub_path, default=0, minimum=0)
-        balance = get_str(sub, 'balance_config', sub_path, default='')
-        options['config_path'] = balance or None
-    config = device_config_from_mapping(cfg, path)
-    try:
-        return create_backend(name, **options), config
-    except (ValueError, OSError) as exc:
-        raise ConfigError(sub_path, str(exc)) from None

@@ -1,19 +1,22 @@
 """
 Error classes of the device bridge, one per concern.
 
-Each subclasses the matching builtin so callers may catch either.
+Each subclasses :class:`~emfc_ros.core.errors.EmfcError` and the matching builtin so callers
+may catch either.
 """
 
+from emfc_ros.core.errors import EmfcError
 
-class ProtocolError(ValueError):
+
+class ProtocolError(EmfcError, ValueError):
     """Bytes are not a valid frame or control message of the device protocol."""
 
 
-class DeviceConfigError(ValueError):
+class DeviceConfigError(EmfcError, ValueError):
     """A device configuration (channels, scaling, limits, generator) is invalid."""
 
 
-class DeviceError(OSError):
+class DeviceError(EmfcError, OSError):
     """The device failed, refused a request or is not in the state the call needs."""
 
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Callable, Dict, List, Optional, Sequence
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -77,6 +77,11 @@ class ReplayBackend:
     """
 
     name = 'replay'
+    host_paced = False
+    #: Setpoints are counted and ignored: a recording applies nothing.
+    applies_excitation = False
+    silence_timeout_s = 0.5
+    intrusion_counters: Tuple[str, ...] = ()
 
     def __init__(self, bag: str = '', *, topic: str = '', pacing: str = 'receive_time',
                  speed: float = 1.0, loop: bool = False,
@@ -345,6 +350,17 @@ class ReplayBackend:
             out = dict(self.counters)
         out['blocks_remaining'] = len(self._blocks) - self._next
         return out
+
+    def description_extra(self) -> Dict[str, Any]:
+        """
+        What this back-end adds to the measurement description's ``extra``.
+
+        Returns
+        -------
+        dict
+            ``replay_bag`` and ``replay_topic``: what is replayed.
+        """
+        return {'replay_bag': self.bag, 'replay_topic': self.topic}
 
     def close(self) -> None:
         """Stop; wake a waiting reader."""

@@ -22,6 +22,7 @@ from emfc_ros.core.device.errors import DeviceConfigError, DeviceError
 from emfc_ros.core.device.function_generator import FunctionGenerator, GeneratorSpec
 from emfc_ros.core.errors import BlockError
 from emfc_ros.core.excitation_queue import ExcitationQueue
+from emfc_ros.core.model.balance_file import load_balance
 
 IDLE = 'idle'
 CONFIGURED = 'configured'
@@ -32,25 +33,6 @@ N_OUTPUTS = 2
 ENGINE_COUNTERS = ('samples_sent', 'setpoint_frames_received', 'setpoint_late_samples',
                    'underrun_samples', 'clamped_samples', 'watchdog_trips',
                    'setpoint_frames_rejected')
-
-
-def load_parameters(path: Optional[str] = None) -> Any:
-    """
-    Balance parameters from a YAML file, or the shipped defaults.
-
-    Parameters
-    ----------
-    path : str, optional
-        A ``balance.yaml``; ``config/balance_default.yaml`` when None.
-
-    Returns
-    -------
-    BalanceParameters
-        The parameters.
-    """
-    from emfc_ros.core.model.parameters import BalanceParameters
-    from emfc_ros.core.paths import config_file
-    return BalanceParameters.load_yaml(path if path else config_file('balance_default.yaml'))
 
 
 class SimulatedDevice:
@@ -85,7 +67,7 @@ class SimulatedDevice:
     def __init__(self, params: Any = None, seed: int = 0, *, max_inputs: int = MAX_CHANNELS,
                  simulator_options: Optional[Mapping[str, Any]] = None) -> None:
         from emfc_ros.core.sim import channels
-        self.params = load_parameters() if params is None else params
+        self.params = load_balance() if params is None else params
         self.seed = int(seed)
         self.max_inputs = int(max_inputs)
         self.simulator_options = dict(simulator_options or {})
@@ -482,11 +464,19 @@ class SimBackend:
     """
 
     name = 'sim'
+    #: Blocks are simulated when read: the host reads them on its clock.
+    host_paced = True
+    applies_excitation = True
+    silence_timeout_s = 0.5
+    recorded_config = None
+    recorded_resolution = None
+    finished = False
+    intrusion_counters: Tuple[str, ...] = ()
 
     def __init__(self, params: Any = None, seed: int = 0, *, config_path: Optional[str] = None,
                  simulator_options: Optional[Mapping[str, Any]] = None) -> None:
         if params is None:
-            params = load_parameters(config_path)
+            params = load_balance(config_path)
         self.device = SimulatedDevice(params, seed, simulator_options=simulator_options)
         self._blocks = 0
 
@@ -582,6 +572,17 @@ class SimBackend:
                            ('device_first_rejected_index', dev.first_rejected_index)):
             out[key] = -1 if index is None else int(index)
         return out
+
+    def description_extra(self) -> Dict[str, Any]:
+        """
+        What this back-end adds to the measurement description's ``extra``.
+
+        Returns
+        -------
+        dict
+            Nothing (the balance is in the bridge's parameters).
+        """
+        return {}
 
     def close(self) -> None:
         """Stop."""

@@ -268,6 +268,12 @@ class UdpBackend:
     """
 
     name = 'udp'
+    host_paced = False
+    applies_excitation = True
+    recorded_config = None
+    recorded_resolution = None
+    finished = False
+    intrusion_counters = INTRUSION_COUNTERS
 
     def __init__(self, device_address: Union[str, Tuple[str, int]] = ('127.0.0.1', 5005), *,
                  bind_address: Union[str, Tuple[str, int]] = ('127.0.0.1', 0),
@@ -548,6 +554,29 @@ class UdpBackend:
         out['device_silent_ms'] = int(1000.0 * self.silence_s()) if self._running else 0
         out['authenticated'] = int(self.key is not None)
         return out
+
+    @property
+    def silence_timeout_s(self) -> float:
+        """
+        No block for this long while running counts as the device lost [s].
+
+        Returns
+        -------
+        float
+            ``device_timeout_s``.
+        """
+        return self.device_timeout_s
+
+    def description_extra(self) -> Dict[str, Any]:
+        """
+        What this back-end adds to the measurement description's ``extra``.
+
+        Returns
+        -------
+        dict
+            Nothing (the device's address is in the bridge's parameters).
+        """
+        return {}
 
     def close(self) -> None:
         """Release the device (RELEASE stops it and ends our session; best effort), then quit."""

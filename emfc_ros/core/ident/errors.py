@@ -1,11 +1,14 @@
 """
 Errors and warnings of the identification core.
 
-:class:`IdentificationError` subclasses :class:`ValueError` so callers may catch either.
+:class:`IdentificationError` subclasses :class:`~emfc_ros.core.errors.EmfcError` and
+:class:`ValueError` so callers may catch either.
 """
 
+from emfc_ros.core.errors import EmfcError
 
-class IdentificationError(ValueError):
+
+class IdentificationError(EmfcError, ValueError):
     """
     Identification cannot proceed with the given data or settings.
 

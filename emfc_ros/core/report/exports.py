@@ -33,6 +33,7 @@ import numpy as np
 from scipy import io as sio
 import yaml
 
+from emfc_ros.core.errors import EmfcError
 from emfc_ros.core.model.linear import INPUTS, STATES
 
 #: Columns of the FRF CSV and numeric arrays of the FRF NPZ, in order, with their meaning.
@@ -72,7 +73,7 @@ INPUT_SETPOINT = {'coil': 'coil setpoint', 'pan': 'load-changer setpoint'}
 OUTPUT_TEXT = 'lever-end position'
 
 
-class ExportError(ValueError):
+class ExportError(EmfcError, ValueError):
     """A file to export or to read back does not have the expected content."""
 
 
