@@ -185,7 +185,7 @@ def test_faults_are_reported_and_no_wrong_sample_is_published(executor, ros_cont
                                               np.zeros((4, 100), dtype=np.int16), emu.session))
         wrong = proto.encode_frame(proto.Frame(proto.STREAM_MEASUREMENT, 7, 1, 700,
                                                np.zeros((3, 100), dtype=np.int16), emu.session))
-        target = bridge._backend.local_address
+        target = bridge.session.backend.local_address
         emu._sock.sendto(good[:60], target)
         emu._sock.sendto(wrong, target)
         foreign = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

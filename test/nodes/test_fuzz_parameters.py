@@ -110,7 +110,7 @@ def test_the_bridge_never_raises_on_start_up_values_and_refusals_mean_error(ros_
                 value = node.get_parameter(name).value
                 assert math.isfinite(value) and low <= value <= high, (name, value)
             for name in daq_bridge.RUNTIME:
-                assert math.isfinite(node._runtime[name])
+                assert math.isfinite(node.session.runtime[name])
     finally:
         node.destroy_node()
 
@@ -142,13 +142,14 @@ def test_run_time_sets_are_valid_or_refused_with_a_reason(ros_context, data):
                 continue
             now = node.get_parameter(name).value
             if name in daq_bridge.RUNTIME:
-                assert math.isfinite(node._runtime[name]) and node._runtime[name] >= 0.0
+                runtime = node.session.runtime[name]
+                assert math.isfinite(runtime) and runtime >= 0.0
             elif name.startswith('funcgen.'):
                 assert name != 'funcgen.coil.waveform' or now in (
                     'off', 'sine', 'chirp', 'prbs', 'constant')
                 # What the bridge would send is a valid generator within the limits.
-                check_generator_range(node._specs, node._config)
-                assert all(isinstance(s, GeneratorSpec) for s in node._specs)
+                check_generator_range(node.session.specs, node.session.config)
+                assert all(isinstance(s, GeneratorSpec) for s in node.session.specs)
             else:
                 raise AssertionError(f'start-up parameter {name} set at run time')
     finally:

@@ -243,6 +243,7 @@ class FaultMonitor:
         self._faults: List[Fault] = []
         self._base: Dict[str, int] = {}
         self._epoch = 0
+        self._grown = False
 
     @property
     def faults(self) -> Tuple[Fault, ...]:
@@ -280,6 +281,29 @@ class FaultMonitor:
         health = health or {}
         self._base = {k: _int(health.get(k)) for k in BASELINE_KEYS}
         self._epoch = int(epoch or 0)
+
+    def set_epoch(self, epoch: int) -> None:
+        """
+        The stream epoch the next faults' device indices count in (a device restart).
+
+        Parameters
+        ----------
+        epoch : int
+            The new epoch; latched faults and the counters' baseline stay.
+        """
+        self._epoch = int(epoch or 0)
+
+    def take_grown(self) -> bool:
+        """
+        Whether a latched fault grew (more samples) since the last call.
+
+        Returns
+        -------
+        bool
+            True once per growth.
+        """
+        grown, self._grown = self._grown, False
+        return grown
 
     def add(self, kind: str, device_index: Optional[int], samples: Optional[int],
             message: str, exact: bool = False) -> Fault:
@@ -356,6 +380,7 @@ class FaultMonitor:
                     new.append(fault)
                 else:
                     self._faults[self._faults.index(old)] = fault
+                    self._grown = True
         for kind, key, index_key, what in (
                 ('device_setpoint_gap', 'device_gap_filled_samples', 'device_first_gap_index',
                  'setpoint samples filled with the safe values for gaps in the setpoint '
