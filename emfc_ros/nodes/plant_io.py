@@ -7,8 +7,9 @@ second publisher of its clock) and the messages of the session's events.
 
 from __future__ import annotations
 
-from typing import Iterable, List
+from typing import Iterable, List, Tuple
 
+from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from rosgraph_msgs.msg import Clock
@@ -26,6 +27,41 @@ from emfc_ros.core.start_gate import parse_endpoints
 #: 10 s of the fastest simulation.
 STATE_QOS = QoSProfile(depth=5000)
 CLOCK_QOS = QoSProfile(depth=5000)
+#: Longest wait, once min_subscribers matched, for the graph's other subscriptions to match
+#: the outputs (a recorder's /clock subscription created with its measurements one) [s].
+OUTPUT_MATCH_S = 5.0
+#: The session's status levels as diagnostic levels.
+LEVELS = {'OK': DiagnosticStatus.OK, 'WARN': DiagnosticStatus.WARN,
+          'ERROR': DiagnosticStatus.ERROR}
+
+
+def outputs_matched(node: Node, publishers: Iterable, waited_s: float) -> Tuple[bool, str]:
+    """
+    Whether every subscription the graph lists on the outputs matched, or the wait is over.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node that owns the publishers.
+    publishers : iterable
+        Its publishers (None entries are skipped).
+    waited_s : float
+        How long the node waited for them already [s].
+
+    Returns
+    -------
+    tuple
+        Go on (all matched, or :data:`OUTPUT_MATCH_S` passed), and a warning ('' if none)
+        naming the outputs it goes on without.
+    """
+    pending = unmatched_outputs(node, publishers)
+    if pending and waited_s < OUTPUT_MATCH_S:
+        return False, ''
+    if pending:
+        return True, (f'subscriptions listed in the graph did not match in {OUTPUT_MATCH_S:g} s '
+                      f'on {", ".join(pending)} (incompatible QoS, or gone): starting without '
+                      'them')
+    return True, ''
 
 
 def unmatched_outputs(node: Node, publishers: Iterable) -> List[str]:

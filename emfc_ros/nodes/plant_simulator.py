@@ -57,7 +57,7 @@ from __future__ import annotations
 import time
 from typing import Dict, List, Optional
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.logging import get_logger
@@ -70,8 +70,7 @@ from std_srvs.srv import Trigger
 
 from emfc_ros.core.errors import BlockError
 from emfc_ros.core.model.parameters import BalanceParameters
-from emfc_ros.core.sim.plant_config import (
-    load_balance, make_simulator, plant_config, runtime_refusal)
+from emfc_ros.core.sim.plant_config import load_balance, make_simulator, plant_config
 from emfc_ros.core.sim.plant_events import (
     Acknowledgement, ClockTick, DescriptionChanged, JointStates, LogLine, MeasurementBlock)
 from emfc_ros.core.sim.plant_parameters import (  # noqa: F401 (the table of --help)
@@ -85,14 +84,8 @@ from emfc_ros.nodes.convert import (
 from emfc_ros.nodes.flow_control import AckFlowControl
 from emfc_ros.nodes.params import declare_table, refuse_unknown
 from emfc_ros.nodes.plant_io import (
-    clock_conflict, clock_msg, CLOCK_QOS, joint_state_msgs, STATE_QOS, unmatched_outputs)
+    clock_conflict, clock_msg, CLOCK_QOS, joint_state_msgs, LEVELS, outputs_matched, STATE_QOS)
 from emfc_ros.nodes.spin import node_main
-
-#: Longest wait, once min_subscribers matched, for the graph's other subscriptions to match
-#: the outputs (a recorder's /clock subscription created with its measurements one) [s].
-OUTPUT_MATCH_S = 5.0
-LEVELS = {'OK': DiagnosticStatus.OK, 'WARN': DiagnosticStatus.WARN,
-          'ERROR': DiagnosticStatus.ERROR}
 
 
 class PlantSimulatorNode(Node):
@@ -132,7 +125,6 @@ class PlantSimulatorNode(Node):
             sim = None
         self._session = s = PlantSession(cfg, sim, time.monotonic(), error='; '.join(
             refused) + '; restart the node with valid values' if refused else '')
-        self._rate = s.rate
         self._pub = {'measurements': self.create_publisher(Float64MultiArray, 'measurements',
                                                            BLOCK_QOS)}
         self._pub_desc = {'measurements': self.create_publisher(
@@ -183,17 +175,11 @@ class PlantSimulatorNode(Node):
     def _param(self, name: str):
         return self.get_parameter(name).value
 
-    def _make_simulator(self, overrides: List[Parameter] = (), log: bool = True):
-        path = self._param('balance_file')
+    def _make_simulator(self, overrides: Dict[str, object] = None, log: bool = True):
         flat = {name: p.value for name, p in self.get_parameters_by_prefix('balance').items()}
-        for p in overrides:
-            if p.name == 'balance_file':
-                path = p.value
-            elif p.name.startswith('balance.'):
-                flat[p.name[len('balance.'):]] = p.value
         s = getattr(self, '_session', None)
         sim, line = make_simulator(
-            load_balance(path, flat), self._param,
+            load_balance(self._param('balance_file'), flat, overrides), self._param,
             s.load_kg if s else self._param('load_mass_kg'),
             s.coupled if s else self._param('load_changer_coupled'))
         if line and log:
@@ -201,28 +187,17 @@ class PlantSimulatorNode(Node):
         return sim
 
     def _on_set_parameters(self, params: List[Parameter]) -> SetParametersResult:
-        s = self._session
-        if any(p.name == 'balance_file' or p.name.startswith('balance.') for p in params):
+        values = {p.name: p.value for p in params}
+        if any(n == 'balance_file' or n.startswith('balance.') for n in values):
             try:
-                candidate = self._make_simulator(params)
+                candidate = self._make_simulator(values)
             except (ValueError, OSError) as exc:
                 return SetParametersResult(successful=False,
                                            reason=f'balance configuration refused: {exc}')
-            self._emit(s.replace_simulator(candidate))
-        values = {}
-        for p in params:
-            reason = runtime_refusal(p.name, p.value, s.rate, s.mode)
-            if reason:
-                return SetParametersResult(successful=False, reason=reason)
-            values[p.name] = p.value
-        s.config.state_rate_Hz = float(values.get('state_rate_Hz', s.config.state_rate_Hz))
-        s.config.command_timeout_s = float(values.get('command_timeout_s',
-                                                      s.config.command_timeout_s))
-        load = float(values.get('load_mass_kg', s.load_kg))
-        coupled = bool(values.get('load_changer_coupled', s.coupled))
-        if (load, coupled) != (s.load_kg, s.coupled):   # a schedule's load is on the pan
-            self._emit(s.set_load(load, coupled))
-        return SetParametersResult(successful=True)
+            self._emit(self._session.replace_simulator(candidate))
+        reason, events = self._session.set_parameters(values)
+        self._emit(events)
+        return SetParametersResult(successful=not reason, reason=reason)
 
     # -- the session's inputs and outputs -----------------------------------------------
 
@@ -257,8 +232,8 @@ class PlantSimulatorNode(Node):
                     rows = e.samples if topic == 'measurements' else \
                         e.samples[list(self._session.groups[topic.split('/', 1)[1]])]
                     builder = self._builders.setdefault(topic, BlockMessageBuilder())
-                    pub.publish(builder.build(e.first_index, self._rate, self._session.epoch,
-                                              rows))
+                    pub.publish(builder.build(e.first_index, self._session.rate,
+                                              self._session.epoch, rows))
                 self._flow.published(e.samples.nbytes)
             elif isinstance(e, JointStates):
                 for msg in joint_state_msgs(e):
@@ -292,12 +267,7 @@ class PlantSimulatorNode(Node):
             Relative topic name (``/clock`` absolute) to ``published`` and, for
             ``joint_states``, ``decimated`` (left out by ``max_state_wall_rate_Hz``) [count].
         """
-        c = self._session.published_counts()
-        counts = {topic: {'published': c['blocks']} for topic in self._pub}
-        counts['joint_states'] = {'published': c['states'], 'decimated': c['states_decimated']}
-        if self._pub_clock is not None:
-            counts['/clock'] = {'published': c['clocks']}
-        return counts
+        return self._session.published_counts(list(self._pub), self._pub_clock is not None)
 
     # -- the graph: start gate, a second clock, diagnostics -----------------------------
 
@@ -308,17 +278,15 @@ class PlantSimulatorNode(Node):
             self._listeners_since = None
             return
         # Every subscription the graph lists on an output (a recorder's /clock, joint_states)
-        # matched too, so that the first block's messages reach it: at most OUTPUT_MATCH_S.
+        # matched too, so that the first block's messages reach it (for a few seconds at most).
         now = time.monotonic()
-        if self._listeners_since is None:
-            self._listeners_since = now
-        pending = unmatched_outputs(self, [*self._pub.values(), self._pub_state, self._pub_clock])
-        if pending and now - self._listeners_since < OUTPUT_MATCH_S:
+        self._listeners_since = self._listeners_since or now
+        pubs = [*self._pub.values(), self._pub_state, self._pub_clock]
+        matched_all, warning = outputs_matched(self, pubs, now - self._listeners_since)
+        if warning:
+            self.get_logger().warning(warning)
+        if not matched_all:
             return
-        if pending:
-            self.get_logger().warning(
-                f'subscriptions listed in the graph did not match in {OUTPUT_MATCH_S:g} s on '
-                f'{", ".join(pending)} (incompatible QoS, or gone): starting without them')
         self._check_clock()
         self._excitation_timer.cancel()
         self.destroy_timer(self._excitation_timer)
@@ -330,9 +298,8 @@ class PlantSimulatorNode(Node):
 
     def _check_clock(self) -> None:
         """Refuse a second publisher of our clock topic (two instances' simulated time)."""
-        if self._pub_clock is None or self._session.clock_conflict:
-            return
-        conflict = clock_conflict(self, self._pub_clock)
+        conflict = '' if self._pub_clock is None or self._session.clock_conflict else \
+            clock_conflict(self, self._pub_clock)
         if not conflict:
             return
         self._session.fail(conflict, clock_conflict=True)
@@ -341,16 +308,9 @@ class PlantSimulatorNode(Node):
 
     def _announce_readiness(self) -> None:
         """Publish excitation/ready when what it says changes."""
-        s = self._session
-        if s.sim is None or s.error:
-            ready, waiting = False, f'refuses to simulate: {s.error or "no simulator"}'
-        elif self._excitation_timer is not None:
-            ready = False
-            waiting = (f'waits for {self._min_subscribers} subscription(s) to '
-                       f'{self._pub["measurements"].topic_name} (a recorder; '
-                       f'{self._pub["measurements"].get_subscription_count()} matched)')
-        else:
-            ready, waiting = True, ''
+        pub = self._pub['measurements']
+        ready, waiting = self._session.readiness(self._excitation_timer is not None,
+                                                 pub.topic_name, pub.get_subscription_count())
         text = readiness_text(self.get_fully_qualified_name(), ready, waiting)
         if text != self._readiness:
             self._readiness = text
@@ -359,17 +319,10 @@ class PlantSimulatorNode(Node):
     def _publish_diagnostics(self) -> None:
         self._check_clock()
         self._announce_readiness()
-        level, message, values = self._session.diagnostics(time.monotonic())
+        level, message, values = self._session.diagnostics(
+            time.monotonic(), self._flow.timeouts, self._excitation_timer is not None)
         values.update({'excitation_subscribed': self._excitation_timer is None,
                        **self._flow.counters()})
-        if level == 'OK' and self._flow.timeouts:
-            level = 'WARN'
-            message = (f'{self._flow.timeouts} wait(s) for acknowledgements by the subscribers '
-                       'ended at the 2 s bound: a subscriber stalled or died (the simulation '
-                       'slowed down; a subscriber that fell 100 blocks behind lost blocks)')
-        if not self._session.error and self._excitation_timer is not None:
-            message = (f'waiting for {self._min_subscribers} subscription(s) to measurements '
-                       'before subscribing to the excitation')
         self._pub_diag.publish(node_diagnostics(self, 'simulation', LEVELS[level], message,
                                                 values))
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import math
 from pathlib import Path
-from typing import Any, Callable, List, Mapping, Tuple
+from typing import Any, Callable, List, Mapping, Optional, Tuple
 
 from emfc_ros.core.config import unflatten
 from emfc_ros.core.control.loop_config import loop_config, loop_timing
@@ -160,7 +160,8 @@ def control_error(control: Mapping[str, Any], sample_rate_Hz: float, time_mode: 
     return ''
 
 
-def load_balance(path: str, flat: Mapping[str, Any]) -> BalanceParameters:
+def load_balance(path: str, flat: Mapping[str, Any],
+                 overrides: Optional[Mapping[str, Any]] = None) -> BalanceParameters:
     """
     The balance: from ``path``, else from the flattened ``balance.*`` values, else the default.
 
@@ -170,6 +171,8 @@ def load_balance(path: str, flat: Mapping[str, Any]) -> BalanceParameters:
         ``balance_file`` (empty: none).
     flat : mapping
         The ``balance.*`` parameters without their prefix.
+    overrides : mapping, optional
+        Parameters about to be set (``balance_file``, ``balance.*``; others are ignored).
 
     Returns
     -------
@@ -181,6 +184,12 @@ def load_balance(path: str, flat: Mapping[str, Any]) -> BalanceParameters:
     ValueError, OSError
         If the file or the values are refused.
     """
+    flat = dict(flat)
+    for name, value in (overrides or {}).items():
+        if name == 'balance_file':
+            path = value
+        elif name.startswith('balance.'):
+            flat[name[len('balance.'):]] = value
     if path:
         return BalanceParameters.load_yaml(Path(path))
     if not flat:

@@ -21,7 +21,7 @@ from __future__ import annotations
 import functools
 import math
 import threading
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -36,7 +36,7 @@ from emfc_ros.core.sim.channels import channel_names, channel_units, MEASURED, R
 from emfc_ros.core.sim.load_schedule import LoadSchedule
 from emfc_ros.core.sim.lockstep import Lockstep
 from emfc_ros.core.sim.monitor import saturation_counts
-from emfc_ros.core.sim.plant_config import PlantConfig
+from emfc_ros.core.sim.plant_config import PlantConfig, runtime_refusal
 from emfc_ros.core.sim.plant_events import (
     Acknowledgement, ClockTick, DescriptionChanged, JointStates, LogLine, MeasurementBlock)
 from emfc_ros.core.sim.resolution import simulator_resolution
@@ -355,6 +355,34 @@ class PlantSession:
         return self._apply_load(mass_kg, coupled, self.next_index)
 
     @_locked
+    def set_parameters(self, values: Mapping[str, Any]) -> Tuple[str, list]:
+        """
+        Run-time parameter changes: checked all, then applied (a new load from the next sample).
+
+        Parameters
+        ----------
+        values : mapping
+            Parameter name to its new value (the node's names).
+
+        Returns
+        -------
+        tuple
+            The reason they are refused ('' when accepted) and the events to publish.
+        """
+        for name, value in values.items():
+            reason = runtime_refusal(name, value, self.rate, self.mode)
+            if reason:
+                return reason, []
+        cfg = self.config
+        cfg.state_rate_Hz = float(values.get('state_rate_Hz', cfg.state_rate_Hz))
+        cfg.command_timeout_s = float(values.get('command_timeout_s', cfg.command_timeout_s))
+        load = float(values.get('load_mass_kg', self.load_kg))
+        coupled = bool(values.get('load_changer_coupled', self.coupled))
+        if (load, coupled) == (self.load_kg, self.coupled):
+            return '', []       # as it is (the node's parameter following a scheduled load)
+        return '', self.set_load(load, coupled)
+
+    @_locked
     def replace_simulator(self, sim) -> list:
         """
         New balance parameters: simulate on with ``sim`` from its operating point.
@@ -450,7 +478,8 @@ class PlantSession:
         return out
 
     @_locked
-    def diagnostics(self, now_s: float) -> Tuple[str, str, dict]:
+    def diagnostics(self, now_s: float, flow_timeouts: int = 0,
+                    holding: bool = False) -> Tuple[str, str, dict]:
         """
         The session's status: level (``OK``, ``WARN``, ``ERROR``), message and values.
 
@@ -458,6 +487,10 @@ class PlantSession:
         ----------
         now_s : float
             Monotonic time [s].
+        flow_timeouts : int
+            Owner mode: waits for the subscribers' acknowledgements that ended at their bound.
+        holding : bool
+            The node holds the excitation until ``min_subscribers`` matched.
 
         Returns
         -------
@@ -496,21 +529,68 @@ class PlantSession:
         level = 'WARN' if defects else 'OK'
         if self.sim is None or self.error:
             level = 'ERROR'
-        return level, self.error or ('excitation defects' if defects else 'ok'), values
+        message = self.error or ('excitation defects' if defects else 'ok')
+        if level == 'OK' and flow_timeouts:
+            level = 'WARN'
+            message = (f'{flow_timeouts} wait(s) for acknowledgements by the subscribers '
+                       'ended at the 2 s bound: a subscriber stalled or died (the simulation '
+                       'slowed down; a subscriber that fell 100 blocks behind lost blocks)')
+        if not self.error and holding:
+            message = (f'waiting for {self.config.min_subscribers} subscription(s) to '
+                       'measurements before subscribing to the excitation')
+        return level, message, values
 
     @_locked
-    def published_counts(self) -> Dict[str, int]:
+    def readiness(self, holding: bool, topic: str, matched: int) -> Tuple[bool, str]:
         """
-        Counts of what the session gave to publish.
+        Whether the excitation would be simulated, and what it waits for if not.
+
+        Parameters
+        ----------
+        holding : bool
+            The node holds the excitation until ``min_subscribers`` matched.
+        topic : str
+            The measurement topic (full name).
+        matched : int
+            Subscriptions matched on it [count].
+
+        Returns
+        -------
+        tuple
+            Ready, and the reason it is not ('' when ready).
+        """
+        if self.sim is None or self.error:
+            return False, f'refuses to simulate: {self.error or "no simulator"}'
+        if holding:
+            return False, (f'waits for {self.config.min_subscribers} subscription(s) to '
+                           f'{topic} (a recorder; {matched} matched)')
+        return True, ''
+
+    @_locked
+    def published_counts(self, block_topics: Sequence[str],
+                         clock: bool) -> Dict[str, Dict[str, int]]:
+        """
+        Messages given to publish per stream, for an in-process supervisor's accounting.
+
+        Parameters
+        ----------
+        block_topics : sequence of str
+            The measurement topics (each carries every block).
+        clock : bool
+            Whether ``/clock`` is published.
 
         Returns
         -------
         dict
-            ``blocks``, ``states`` (owner and wall modes), ``states_decimated`` and
-            ``clocks`` [count].
+            Topic to ``published`` and, for ``joint_states``, ``decimated`` (left out by
+            ``max_state_wall_rate_Hz``) [count]; lockstep states are not counted.
         """
-        return {'blocks': self.blocks_out, 'states': self.states.published,
-                'states_decimated': self.states.decimated, 'clocks': self.clocks_out}
+        counts = {topic: {'published': self.blocks_out} for topic in block_topics}
+        counts['joint_states'] = {'published': self.states.published,
+                                  'decimated': self.states.decimated}
+        if clock:
+            counts['/clock'] = {'published': self.clocks_out}
+        return counts
 
     # -- simulation ----------------------------------------------------------------------
 
