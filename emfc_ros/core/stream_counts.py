@@ -83,8 +83,9 @@ def states_due(block_sizes: Iterable[int], sample_rate_Hz: float,
     """
     Joint states an owner-mode simulator owes for the blocks it answered.
 
-    The simulator publishes the state at samples 0, k, 2k, ... of every block,
-    ``k = round(sample_rate_Hz / state_rate_Hz)``.
+    The simulator publishes the state at the samples 0, k, 2k, ... of the sample index (the
+    device contract's grid, :func:`emfc_ros.core.device_contract.state_sample_offsets`),
+    ``k = round(sample_rate_Hz / state_rate_Hz)``; the blocks follow each other from sample 0.
 
     Parameters
     ----------
@@ -103,7 +104,7 @@ def states_due(block_sizes: Iterable[int], sample_rate_Hz: float,
     if state_rate_Hz <= 0.0:
         return 0
     step = max(1, int(round(sample_rate_Hz / state_rate_Hz)))
-    return sum(-(-int(n) // step) for n in block_sizes)
+    return -(-sum(int(n) for n in block_sizes) // step)
 
 
 def problems(counts: Iterable[StreamCount]) -> List[str]:

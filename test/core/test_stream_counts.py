@@ -18,6 +18,8 @@ def test_states_due_counts_the_samples_of_each_block_on_the_state_grid():
     assert states_due([1000], 10000.0, 0.0) == 0
     # a state rate above the sample rate: every sample
     assert states_due([7, 3], 100.0, 1000.0) == 10
+    # the grid is the sample index's, not each block's: samples 0, 10, ..., 830 of 833
+    assert states_due([128] * 6 + [65], 10000.0, 1000.0) == 84
 
 
 def test_counts_that_add_up_are_no_problem_and_the_table_says_so():

@@ -183,7 +183,7 @@ def test_the_owner_plant_waits_for_a_stalled_recorder_and_says_so(
     assert ros_harness.spin_until(
         executor, lambda: pub.get_subscription_count() >= 1
         and measurements.get_subscription_count() >= 1, TIMEOUT_S), proc.output()
-    hold = plant._sim.hold_setpoints_V[:, None]
+    hold = plant._session.sim.hold_setpoints_V[:, None]
     n_blocks = 100
     os.kill(proc.pid, signal.SIGSTOP)
     resume = subprocess.Popen(['sh', '-c', f'sleep 3; kill -CONT {proc.pid}'])
