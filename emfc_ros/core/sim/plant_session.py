@@ -106,6 +106,8 @@ class PlantSession:
         self.coupled = bool(config.load_changer_coupled)
         self.load_changes: List[List] = []      # [stream sample index, load [kg]] as applied
         self.start_s = float(start_s)
+        #: Wall mode: the stamp of sample 0 [ns] (the node's clock at the first step).
+        self._wall_stamp0_ns: Optional[int] = None
         self.epoch = 0
         self.next_index = 0         # stream index the next simulated sample carries
         self.sim_samples = 0
@@ -292,7 +294,8 @@ class PlantSession:
         now_s : float
             Monotonic time [s].
         stamp_ns : int
-            Wall mode: the stamp of the first state simulated now [ns] (the node's clock).
+            Wall mode: the node's clock now [ns]; at the first step it fixes the stamp of
+            sample 0, every state after is stamped from there on the sample clock.
         state_subscribed : bool
             Lockstep mode: ``joint_states`` has a subscriber (the first state waits for it).
 
@@ -311,12 +314,17 @@ class PlantSession:
         if self.mode == 'wall' and self.sim is not None:
             block = self.config.block_size
             due = int((now_s - self.start_s) * self.rate) // block * block
-            for k in range(WALL_BUDGET_BLOCKS):
+            for _ in range(WALL_BUDGET_BLOCKS):
                 if self.next_index + block > due:
                     break
                 had = self.queue.queued
                 setpoints, _ = self.queue.pop(block)
-                base = stamp_ns + int(round(k * block * 1e9 / self.rate))
+                # stamped on the sample clock from sample 0 (the device contract: the
+                # daq_bridge's rule), not from when the timer happened to run
+                if self._wall_stamp0_ns is None:
+                    self._wall_stamp0_ns = stamp_ns - int(round(self.next_index * 1e9
+                                                                / self.rate))
+                base = self._wall_stamp0_ns + int(round(self.next_index * 1e9 / self.rate))
                 self._simulate(self.next_index, setpoints, base, now_s, out)
                 if had:
                     self._acknowledge(self.queue.head_index, now_s, out)
@@ -506,7 +514,9 @@ class PlantSession:
             'blocks_in': self.blocks_in, 'blocks_out': self.blocks_out,
             'malformed_messages': self.malformed, 'command_N': self.command.effort_N,
             'command_watchdog_trips': self.command.watchdog_trips,
-            'bad_commands': self.bad_commands, 'last_error': self.last_error,
+            'bad_commands': self.bad_commands,
+            # the device contract's name (the daq_bridge's too)
+            'command_malformed': self.bad_commands, 'last_error': self.last_error,
             'error': self.error, 'min_subscribers': self.config.min_subscribers,
             'states_published': self.states.published,
             'states_decimated': self.states.decimated,
