@@ -770,6 +770,11 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
 
         recorded = set(recorder.recorded_topics())
         spin_until(settled, 10.0)
+        # Nothing more is taken, and what was taken is written: the counts are what the
+        # closed bag holds (a /diagnostics message arriving between the count and the close
+        # made it hold one more than they said).
+        recorder.end_subscriptions()
+        spin_until(lambda: recorder.queued_messages() == 0, 10.0)
         written = recorder.written_messages()
         # No silent loss: what each stream owed, published, left out and recorded, in the
         # bag's custom data (added to the open bag) and in summary.md.

@@ -429,15 +429,36 @@ class RecorderNode(Node):
         """'simulated' when the node clock is ``/clock`` (``use_sim_time``), else 'wall'."""
         return 'simulated' if self.get_parameter('use_sim_time').value else 'wall'
 
-    def _stop(self) -> Tuple[bool, str]:
-        if self._writer is None:
-            return False, f'not recording (state {self._state})'
+    def end_subscriptions(self) -> None:
+        """
+        Take no more messages (the bag stays open): what is written from now on is final.
+
+        An in-process supervisor calls this before it reads :meth:`written_messages` for the
+        bag's own accounting, so that no message arriving between the count and the close
+        makes the bag hold more than its counts say.
+        """
         if self._discovery_timer is not None:
             self.destroy_timer(self._discovery_timer)
             self._discovery_timer = None
         for sub, _ in self._recorded.values():
             self.destroy_subscription(sub)
         self._recorded = {}
+
+    def queued_messages(self) -> int:
+        """
+        Messages taken but not yet written to the bag.
+
+        Returns
+        -------
+        int
+            The writer's queue depth (0 when not recording).
+        """
+        return self._writer.stats().queue_depth if self._writer is not None else 0
+
+    def _stop(self) -> Tuple[bool, str]:
+        if self._writer is None:
+            return False, f'not recording (state {self._state})'
+        self.end_subscriptions()
         self._finish_fetches(force=True)
         stats = self._writer.stop()
         self._writer = None
