@@ -21,6 +21,7 @@ import sys
 from typing import Dict, List, Optional, Sequence
 
 import ros_harness
+from ros_harness import scaled
 
 REPO = Path(__file__).resolve().parents[1]
 CLI_SOURCE = REPO.parent / 'shared' / 'ros2-jazzy-cli'
@@ -140,7 +141,7 @@ class TypedProcess(ros_harness.NodeProcess):
         except subprocess.TimeoutExpired:
             return None
 
-    def stop(self, timeout_s: float = 30.0) -> int:
+    def stop(self, timeout_s: float = scaled(30.0)) -> int:
         """
         Ctrl-C (SIGINT to the job's group), then SIGKILL to the group if it does not end.
 
@@ -160,7 +161,7 @@ class TypedProcess(ros_harness.NodeProcess):
             _signal_group(self.pid, signal.SIGINT)
             if self.wait(timeout_s) is None:
                 _signal_group(self.pid, signal.SIGKILL)
-                self.proc.wait(timeout=10)
+                self.proc.wait(timeout=scaled(10))
                 ros_harness.clean_shared_memory()
         else:
             # ended by itself: end what it may have left in its group (still ours: the
@@ -228,7 +229,7 @@ class StubLaunch:
         """Whether every node process still runs."""
         return all(p.alive() for p in self.nodes)
 
-    def stop(self, timeout_s: float = 30.0) -> int:
+    def stop(self, timeout_s: float = scaled(30.0)) -> int:
         """
         Ctrl-C to every node; 0 when each ended with 0, else the first other exit code.
 
@@ -277,5 +278,5 @@ def start_launch(stub, package: str, file_name: str, args: Sequence[str], log_di
 def stop_ros2_daemon() -> None:
     """Stop the ``ros2`` daemon that ``ros2 topic`` verbs start (it would outlive the tests)."""
     if real_cli():
-        subprocess.run(['ros2', 'daemon', 'stop'], capture_output=True, timeout=60,
+        subprocess.run(['ros2', 'daemon', 'stop'], capture_output=True, timeout=scaled(60),
                        env=ros_harness.child_environment(), check=False)

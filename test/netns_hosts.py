@@ -36,10 +36,11 @@ import time
 from typing import Dict, List, Optional, Sequence
 
 import ros_harness
+from ros_harness import scaled
 
 TOOLS = ('ip', 'unshare', 'nsenter')
 #: Bound on any one namespace or link command [s].
-COMMAND_TIMEOUT_S = 30.0
+COMMAND_TIMEOUT_S = scaled(30.0)
 
 
 class HostSetupError(RuntimeError):
@@ -173,7 +174,7 @@ class Host:
         return {link['ifname']: link
                 for link in json.loads(self.run(['ip', '-s', '-j', 'link', 'show']))}
 
-    def close(self, timeout_s: float = 10.0) -> None:
+    def close(self, timeout_s: float = scaled(10.0)) -> None:
         """End the holder (by its pid); the namespaces go with the last process in them."""
         if self._holder.poll() is None:
             try:

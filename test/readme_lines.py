@@ -20,6 +20,8 @@ import subprocess
 import sys
 from typing import List, Optional, Sequence, Tuple
 
+from ros_harness import scaled
+
 REPO = Path(__file__).resolve().parents[1]
 README = REPO / 'README.md'
 FENCE = re.compile(r'^\s*(`{3,}|~{3,})\s*([\w+-]*)')
@@ -242,7 +244,7 @@ def check_tools_venv() -> None:
     """
     env = dict(os.environ, EMFC_VENV=sys.prefix)
     check = subprocess.run([str(REPO / 'tools' / 'setup_env.sh'), '--check'],
-                           capture_output=True, text=True, timeout=60, env=env)
+                           capture_output=True, text=True, timeout=scaled(60), env=env)
     assert check.returncode == 0, (
         f'{sys.prefix} is not the current tools venv ({check.stderr.strip()}): run the suite '
         'with ./tools/test.sh, which sets it up')

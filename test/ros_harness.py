@@ -8,6 +8,7 @@ processes are ended by the id we started them with.
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 import shutil
@@ -17,7 +18,44 @@ import sys
 import time
 from typing import Any, Callable, Dict, List, Optional, Sequence
 
-DISCOVERY_TIMEOUT_S = 10.0
+#: The one scale of every test timeout: ``EMFC_TEST_TIMEOUT_SCALE`` (default 1), a positive
+#: finite factor for slow or loaded machines. Timeouts only bound waits; no test asserts an
+#: upper bound on wall-clock time (such figures are measured in ``bench/``).
+TIMEOUT_SCALE_VARIABLE = 'EMFC_TEST_TIMEOUT_SCALE'
+
+
+def _timeout_scale(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float('nan')
+    if not math.isfinite(value) or value <= 0.0:
+        raise ValueError(f'{TIMEOUT_SCALE_VARIABLE} must be a positive finite number (the '
+                         f'factor of every test timeout), got {text!r}')
+    return value
+
+
+TIMEOUT_SCALE = _timeout_scale(os.environ.get(TIMEOUT_SCALE_VARIABLE, '1'))
+
+
+def scaled(seconds: float) -> float:
+    """
+    A test timeout on this machine: its scale-1 value times ``EMFC_TEST_TIMEOUT_SCALE``.
+
+    Parameters
+    ----------
+    seconds : float
+        The timeout at scale 1 [s].
+
+    Returns
+    -------
+    float
+        The timeout to wait at most [s].
+    """
+    return float(seconds) * TIMEOUT_SCALE
+
+
+DISCOVERY_TIMEOUT_S = scaled(10.0)
 
 
 def session_domain_id() -> int:
@@ -208,7 +246,7 @@ class NodeProcess:
         """
         return self.proc.poll() is None
 
-    def stop(self, timeout_s: float = 10.0) -> int:
+    def stop(self, timeout_s: float = scaled(10.0)) -> int:
         """
         Interrupt the process (SIGINT), then kill it if it does not end in time.
 
@@ -239,7 +277,7 @@ class NodeProcess:
         """Kill the process at once (SIGKILL) and clean its shared-memory leftovers."""
         if self.proc.poll() is None:
             os.kill(self.pid, signal.SIGKILL)
-            self.proc.wait(timeout=10)
+            self.proc.wait(timeout=scaled(10))
             self.killed = True
         self.stdout.close()
         clean_shared_memory()
@@ -250,7 +288,7 @@ def clean_shared_memory() -> None:
     fastdds = shutil.which('fastdds') or str(Path(sys.executable).parent / 'fastdds')
     if Path(fastdds).exists():
         subprocess.run([fastdds, 'shm', 'clean'], stdout=subprocess.DEVNULL,
-                       stderr=subprocess.DEVNULL, timeout=30, check=False)
+                       stderr=subprocess.DEVNULL, timeout=scaled(30), check=False)
 
 
 def node_executable(name: str) -> List[str]:

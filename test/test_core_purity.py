@@ -7,6 +7,7 @@ import subprocess
 import sys
 
 import emfc_ros.core
+from ros_harness import scaled
 
 CORE_DIR = Path(emfc_ros.core.__file__).parent
 FORBIDDEN_ROOTS = ('rclpy', 'rosidl', 'rcl_interfaces', 'builtin_interfaces')
@@ -42,7 +43,7 @@ def test_importing_every_core_module_loads_no_ros_module():
         '    importlib.import_module(name)\n'
         'print("\\n".join(sorted(sys.modules)))\n')
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
-                         timeout=120, check=True).stdout.split()
+                         timeout=scaled(120), check=True).stdout.split()
     loaded = [m for m in out if _forbidden(m)]
     assert loaded == []
 

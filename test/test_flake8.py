@@ -4,6 +4,8 @@ from pathlib import Path
 import subprocess
 import sys
 
+from ros_harness import scaled
+
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -11,5 +13,5 @@ def test_flake8_is_clean():
     targets = [p for p in ('emfc_ros', 'test', 'bench', 'launch', 'setup.py')
                if (REPO / p).exists()]
     result = subprocess.run([sys.executable, '-m', 'flake8', *targets], cwd=REPO,
-                            capture_output=True, text=True, timeout=300)
+                            capture_output=True, text=True, timeout=scaled(300))
     assert result.returncode == 0, result.stdout + result.stderr

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Run the test suite on a fresh machine: set up .venv, then pytest with loopback-only DDS,
 # inside a private network namespace when root. Extra arguments go to pytest.
+# EMFC_TEST_TIMEOUT_SCALE=F (default 1, positive) multiplies every test timeout (slow machines).
 set -euo pipefail
 here=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 venv=${EMFC_VENV:-$here/.venv}

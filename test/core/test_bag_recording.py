@@ -18,6 +18,7 @@ from rosbags.typesys import get_typestore, Stores
 from emfc_ros.core.bag import (
     BagWriter, OfferedQos, QueuedBagWriter, read_metadata, read_streams, repair_bag)
 from emfc_ros.core.blocks import pack
+from ros_harness import scaled
 
 TS = get_typestore(Stores.ROS2_JAZZY)
 F64 = 'std_msgs/msg/Float64MultiArray'
@@ -33,7 +34,7 @@ def block_cdr(first, n):
     return TS.serialize_cdr(t[F64](layout=layout, data=pack(first, 1000.0, 1, x)), F64)
 
 
-def wait_for(predicate, timeout_s=10.0):
+def wait_for(predicate, timeout_s=scaled(10.0)):
     deadline = time.monotonic() + timeout_s
     while not predicate():
         if time.monotonic() > deadline:
@@ -97,7 +98,7 @@ FULL_DISK_SCRIPT = textwrap.dedent("""
     resource.setrlimit(resource.RLIMIT_FSIZE, (400_000, 400_000))
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     import time
-    sys.path.insert(0, {test_dir!r})
+    sys.path[:0] = [{test_dir!r}, {test_root!r}]
     from test_bag_recording import block_cdr, wait_for
     from emfc_ros.core.bag import BagWriter, QueuedBagWriter
     queued = QueuedBagWriter(BagWriter(sys.argv[1], chunk_size_B=20_000), flush_period_s=0.05)
@@ -116,9 +117,10 @@ FULL_DISK_SCRIPT = textwrap.dedent("""
 
 
 def test_full_disk_is_an_error_and_the_flushed_data_survive(tmp_path):
-    script = FULL_DISK_SCRIPT.format(test_dir=str(Path(__file__).parent))
+    script = FULL_DISK_SCRIPT.format(test_dir=str(Path(__file__).parent),
+                                     test_root=str(Path(__file__).parents[1]))
     out = subprocess.run([sys.executable, '-c', script, str(tmp_path / 'b')], cwd=REPO,
-                         capture_output=True, text=True, timeout=60)
+                         capture_output=True, text=True, timeout=scaled(60))
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout.strip().splitlines()[-1])
     assert result['state'] == 'error' and 'File too large' in result['error']

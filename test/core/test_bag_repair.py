@@ -17,6 +17,7 @@ from emfc_ros.cli import bag_info, bag_repair
 from emfc_ros.core.bag import (
     BagFormatError, BagWriter, OfferedQos, read_metadata, read_streams, repair_bag)
 from emfc_ros.core.blocks import pack
+from ros_harness import scaled
 
 TS = get_typestore(Stores.ROS2_JAZZY)
 F64 = 'std_msgs/msg/Float64MultiArray'
@@ -128,7 +129,7 @@ def test_repair_and_info_commands(tmp_path):
     writer, _ = killed_bag(bag, n_blocks=10, flush_every=5)
     writer.abort()
     out = subprocess.run([sys.executable, '-m', 'emfc_ros.cli.bag_repair', str(bag)],
-                         capture_output=True, text=True, timeout=60)
+                         capture_output=True, text=True, timeout=scaled(60))
     assert out.returncode == 0, out.stderr
     assert 'recovered, 10 messages' in out.stdout
     assert bag_repair.main([str(tmp_path / 'nothing')]) == 2

@@ -5,6 +5,7 @@ Run inside a private network namespace (see ``tools/test.sh``); every socket bin
 on an ephemeral port, every wait is bounded.
 """
 
+import math
 import select
 import socket
 import subprocess
@@ -21,6 +22,7 @@ from emfc_ros.core.device import protocol as proto
 from emfc_ros.core.device.backend import from_codes, input_scaling, to_codes
 from emfc_ros.core.device.errors import DeviceConfigError
 from emfc_ros.core.sim.converters import convert_V
+from ros_harness import scaled
 
 RATE_HZ = 100000.0
 BLOCK = 500                  # 200 frames per second
@@ -68,7 +70,7 @@ def backends():
         backend.close()
 
 
-def _collect(backend, done, timeout_s=5.0):
+def _collect(backend, done, timeout_s=scaled(5.0)):
     blocks = []
     deadline = time.monotonic() + timeout_s
     while not done(blocks) and time.monotonic() < deadline:
@@ -134,7 +136,7 @@ def test_injected_drop_duplicate_reorder_corrupt_are_counted_and_no_wrong_sample
     backend.configure(_config(watchdog_timeout_s=2.0))
     backend.set_function_generator(SPECS)
     backend.start()
-    deadline = time.monotonic() + 10.0
+    deadline = time.monotonic() + scaled(10.0)
     while len(emu.sent) < 200 and time.monotonic() < deadline:
         backend.read_block(0.05)                      # keep the queue short while waiting
     backend.stop()
@@ -198,7 +200,7 @@ class FakeDevice:
         self.thread.start()
 
     def _serve(self):
-        deadline = time.monotonic() + 20.0
+        deadline = time.monotonic() + scaled(20.0)
         while not self.stop.is_set() and time.monotonic() < deadline:
             try:
                 data, addr = self.sock.recvfrom(65536)
@@ -265,7 +267,7 @@ def test_corrupt_truncated_foreign_and_mismatched_datagrams_never_crash_the_host
         finally:
             intruder.close()
         fake.sock.sendto(frame(1), fake.host)
-        blocks = _collect(backend, lambda b: len(b) >= 2, timeout_s=3.0)
+        blocks = _collect(backend, lambda b: len(b) >= 2, timeout_s=scaled(3.0))
         assert [b.first_sample_index for b in blocks] == [0, BLOCK]
         assert np.array_equal(blocks[0].samples, from_codes(codes, scale, offset))
         health = backend.health()
@@ -305,7 +307,7 @@ class RawClient:
                                                             session=session)), self.device)
         return self.rid
 
-    def answer(self, rid, timeout_s=2.0):
+    def answer(self, rid, timeout_s=scaled(2.0)):
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             msg = self._receive(deadline - time.monotonic())
@@ -313,7 +315,7 @@ class RawClient:
                 return msg
         raise AssertionError(f'no response to request {rid}')
 
-    def request(self, mtype, body=b'', timeout_s=2.0):
+    def request(self, mtype, body=b'', timeout_s=scaled(2.0)):
         msg = self.answer(self.send(mtype, body), timeout_s)
         assert msg.status == proto.OK, msg.error_text()
         return msg
@@ -337,31 +339,54 @@ def test_device_watchdog_drives_outputs_safe_within_one_block_when_heartbeats_st
     emu = emulators(seed=2)
     client = RawClient(emu.port)
     try:
-        timeout_s = 0.15
+        # Heartbeats 30 ms apart keep a 0.5 s watchdog fed (a stall of the test of 0.47 s
+        # would trip it early: then the last reply below says so).
+        timeout_s = 0.5
         config = _config(watchdog_timeout_s=timeout_s, safe_V=(0.25, 0.0))
         client.configure(config)
         client.request(proto.FUNCGEN, proto.encode_funcgen(
             [GeneratorSpec('constant', offset_V=1.0), GeneratorSpec()]))
         client.request(proto.START)
-        t_start = time.monotonic()
         for _ in range(8):
-            client.request(proto.HEARTBEAT, proto.HEARTBEAT_REQUEST.pack(0))
+            last = proto.decode_heartbeat_reply(client.request(
+                proto.HEARTBEAT, proto.HEARTBEAT_REQUEST.pack(0)).body)
             client.pump(0.03)
-        t_last = time.monotonic() - t_start
-        client.pump(timeout_s + 0.3)
+        assert not last.watchdog_tripped and last.watchdog_trips == 0
         scale, offset = input_scaling(config)
-        coil = np.concatenate([f.samples[COIL] for f in client.frames]) * scale[COIL]
+        dac = convert_V(np.array([1.0, 0.25]), 16, 10.0)
+
+        def coil():
+            return np.concatenate([f.samples[COIL] for f in client.frames]) * scale[COIL] \
+                if client.frames else np.zeros(0)
+
+        # Heartbeats stop: read frames (bounded) until one block after the first safe sample.
+        deadline = time.monotonic() + scaled(10.0)
+        while time.monotonic() < deadline:
+            tripped = np.flatnonzero(coil() == dac[1])
+            if tripped.size and coil().size >= tripped[0] + BLOCK:
+                break
+            client.pump(0.05)
+        # The device's record of the heartbeat it last heard, read before the next one.
+        heard_s, started_s = emu._last_heard, emu._t0
         assert [f.first_sample_index for f in client.frames] == \
             [i * BLOCK for i in range(len(client.frames))]
-        dac = convert_V(np.array([1.0, 0.25]), 16, 10.0)
+        coil = coil()
         tripped = np.flatnonzero(coil == dac[1])
         assert tripped.size and np.all(coil[:tripped[0]] == dac[0])
         assert np.all(coil[tripped[0]:] == dac[1])               # stays safe until START
-        trip_s = tripped[0] / RATE_HZ
-        assert t_last + timeout_s - 0.1 <= trip_s <= t_last + timeout_s + 0.1
+        # Safe from the device sample at which the watchdog timeout after the last heartbeat
+        # ended, on the device's own sample clock (not rounded to a block), whatever the
+        # machine's speed: never before the sample the last heartbeat's reply announced
+        # plus the timeout.
+        device = emu.device.config
+        expected = int(math.ceil((heard_s + device.watchdog_timeout_s - started_s)
+                                 * device.sample_rate_Hz))
+        assert tripped[0] == expected, (tripped[0], expected)
+        assert tripped[0] >= last.next_sample_index + int(timeout_s * RATE_HZ) - 1
         reply = proto.decode_heartbeat_reply(client.request(
             proto.HEARTBEAT, proto.HEARTBEAT_REQUEST.pack(0)).body)
         assert reply.watchdog_tripped and reply.watchdog_trips == 1
+        assert reply.watchdog_trip_index == tripped[0]
         client.request(proto.START)
         reply = proto.decode_heartbeat_reply(client.request(
             proto.HEARTBEAT, proto.HEARTBEAT_REQUEST.pack(0)).body)
@@ -437,7 +462,7 @@ def test_streamed_setpoints_are_applied_and_underruns_counted_over_udp(emulators
                                                        ramp[:, :10])), emu.address)
     finally:
         intruder.close()
-    deadline = time.monotonic() + 2.0
+    deadline = time.monotonic() + scaled(2.0)
     while backend.status().counters['foreign_datagrams'] < 1 and time.monotonic() < deadline:
         time.sleep(0.02)
     assert backend.status().counters['setpoint_frames_received'] == frames
@@ -477,7 +502,7 @@ def test_cli_prints_its_port_serves_and_dies_as_injected(backends):
         backend = backends(port)
         status = backend.status()
         assert status.state == proto.STATE_IDLE
-        assert proc.wait(timeout=30.0) == 3
+        assert proc.wait(timeout=scaled(30.0)) == 3
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -495,7 +520,7 @@ def test_a_retried_request_is_answered_again_but_not_executed_twice(emulators):
         replies = []
         for _ in range(2):
             client.sock.sendto(start, client.device)
-            deadline = time.monotonic() + 2.0
+            deadline = time.monotonic() + scaled(2.0)
             msg = None
             while msg is None and time.monotonic() < deadline:
                 msg = client._receive(deadline - time.monotonic())
@@ -515,7 +540,7 @@ def test_a_retried_request_is_answered_again_but_not_executed_twice(emulators):
 
 def _exchange(client, message):
     client.sock.sendto(proto.encode_message(message), client.device)
-    deadline = time.monotonic() + 2.0
+    deadline = time.monotonic() + scaled(2.0)
     while time.monotonic() < deadline:
         ready, _, _ = select.select([client.sock], [], [], deadline - time.monotonic())
         if ready:

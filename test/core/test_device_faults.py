@@ -9,6 +9,7 @@ from emfc_ros.core.device import protocol as proto
 from emfc_ros.core.device.backend import default_device_config
 from emfc_ros.core.device.emulator import DeviceEmulator
 from emfc_ros.core.device.faults import describe, Fault, FaultMonitor, faults_from_extra
+from ros_harness import scaled
 
 RATE = 10000.0
 
@@ -114,7 +115,7 @@ def test_faults_round_trip_through_a_description_and_fall_inside_or_outside():
 def _request(sock, device, mtype, rid, body=b'', session=0):
     sock.sendto(proto.encode_message(proto.Message(mtype, rid, body=body, session=session)),
                 device)
-    deadline = time.monotonic() + 5.0
+    deadline = time.monotonic() + scaled(5.0)
     while time.monotonic() < deadline:
         data, _ = sock.recvfrom(65536)
         if data[:4] != b'EMFC':

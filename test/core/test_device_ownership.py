@@ -27,6 +27,7 @@ from emfc_ros.core.device import protocol as proto
 from emfc_ros.core.device.auth import KeyFileError, Signer
 from emfc_ros.core.device.backend import input_scaling
 from emfc_ros.core.sim.converters import convert_V
+from ros_harness import scaled
 
 RATE_HZ = 20000.0
 BLOCK = 500
@@ -63,7 +64,7 @@ class Client:
         self.sock.sendto(data, self.device)
         return self.rid
 
-    def answer(self, rid, timeout_s=2.0):
+    def answer(self, rid, timeout_s=scaled(2.0)):
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             ready, _, _ = select.select([self.sock], [], [], deadline - time.monotonic())
@@ -119,7 +120,7 @@ def emulator():
         assert emu.error is None, emu.error
 
 
-def _read(backend, n, timeout_s=5.0):
+def _read(backend, n, timeout_s=scaled(5.0)):
     blocks = []
     deadline = time.monotonic() + timeout_s
     while len(blocks) < n and time.monotonic() < deadline:
@@ -217,7 +218,7 @@ def test_only_the_owners_heartbeats_feed_the_watchdog_and_a_lost_owner_can_be_re
             owner.beat()
             owner.pump(0.05)
         # The owner falls silent; the intruder does not.
-        deadline = time.monotonic() + 5.0
+        deadline = time.monotonic() + scaled(5.0)
         while not emu.device.watchdog_tripped and time.monotonic() < deadline:
             time.sleep(0.02)
         assert emu.device.watchdog_tripped
@@ -373,7 +374,7 @@ def test_late_unsolicited_and_forged_replies_are_counted_not_believed():
     try:
         backend.configure(_config())
         assert backend.session == 77
-        deadline = time.monotonic() + 5.0
+        deadline = time.monotonic() + scaled(5.0)
         while backend.health()['heartbeat_replies'] < 5 and time.monotonic() < deadline:
             time.sleep(0.02)
         health = backend.health()
@@ -432,7 +433,7 @@ def test_a_dead_device_is_declared_lost_even_when_the_host_stalls_again_and_agai
     reader = threading.Thread(target=pump, daemon=True)
     reader.start()
     try:
-        deadline = time.monotonic() + 60.0
+        deadline = time.monotonic() + scaled(60.0)
         while not (lines and lines[-1]['frames_received'] > 5) and \
                 time.monotonic() < deadline:
             time.sleep(0.05)
@@ -475,7 +476,7 @@ def test_lost_and_refused_setpoint_frames_are_reported_where_they_began(emulator
         backend._send(proto.encode_frame(proto.Frame(
             proto.STREAM_SETPOINT, 999, backend.epoch, start + 100 * BLOCK, np.ones((3, 10)),
             backend.session)))
-        deadline = time.monotonic() + 5.0
+        deadline = time.monotonic() + scaled(5.0)
         while backend.health()['device_setpoint_frames_rejected'] < 1 and \
                 time.monotonic() < deadline:
             backend.read_block(0.1)

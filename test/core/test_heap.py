@@ -5,12 +5,13 @@ import subprocess
 import sys
 
 from emfc_ros.core.heap import CommandHeap
+from ros_harness import scaled
 
 
 def _python(code):
     """Run code in a fresh interpreter (the collector settings are the whole process's)."""
     return subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
-                          timeout=120)
+                          timeout=scaled(120))
 
 
 def test_settled_does_nothing_before_start():

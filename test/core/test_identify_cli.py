@@ -24,6 +24,7 @@ from emfc_ros.core.ident.offnominal import (draw_balance, record_draw, TEST_SEED
 from emfc_ros.core.paths import config_file
 from emfc_ros.core.signals import experiment_from_config, find_experiment_mapping
 import ident_bags
+from ros_harness import scaled
 
 SEED = TEST_SEEDS[3]
 
@@ -51,7 +52,7 @@ def bag_of(record, folder: Path, **kwargs) -> Path:
 
 def identify(bag: Path, out: Path, *extra: str) -> subprocess.CompletedProcess:
     return subprocess.run([_cli(), str(bag), '-o', str(out), *extra], capture_output=True,
-                          text=True, timeout=600)
+                          text=True, timeout=scaled(600))
 
 
 @pytest.mark.slow

@@ -28,6 +28,7 @@ from emfc_ros.core.ident.pipeline import identify
 from emfc_ros.core.model.parameters import BalanceParameters
 from emfc_ros.core.report import background, plots
 from emfc_ros.core.signals import experiment_from_config, find_experiment_mapping
+from ros_harness import scaled
 
 TRAJECTORY = Path(__file__).resolve().parents[2] / 'config' / 'identification_trajectory.yaml'
 
@@ -111,7 +112,7 @@ def test_two_threads_never_share_a_figure(jobs, tmp_path):
     import threading
     bode = next(job for job in jobs if job.kind == 'bode')
     plots._KEPT.clear()
-    together = threading.Barrier(2, timeout=60)
+    together = threading.Barrier(2, timeout=scaled(60))
 
     def draw(k):
         together.wait()                 # both threads alive while either draws

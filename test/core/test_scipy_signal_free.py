@@ -17,6 +17,7 @@ from emfc_ros.core.ident.frf import window_samples
 from emfc_ros.core.ident.metrics import correlation_at_lags
 from emfc_ros.core.ident.modal_filter import modal_pair
 from emfc_ros.core.report.exports import ss_to_tf, tf_to_ss
+from ros_harness import scaled
 
 
 @pytest.mark.parametrize('n', [1, 2, 7, 256, 4096])
@@ -87,7 +88,7 @@ def test_the_runners_path_imports_neither_scipy_signal_nor_stats():
             'import emfc_ros.core.report.writer, emfc_ros.core.report.exports\n'
             "print(sorted(m for m in ('scipy.signal', 'scipy.stats') if m in sys.modules))\n")
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
-                         timeout=120)
+                         timeout=scaled(120))
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == '[]', out.stdout
 

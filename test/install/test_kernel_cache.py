@@ -19,6 +19,7 @@ import pytest
 
 import readme_lines
 import ros_harness
+from ros_harness import scaled
 
 LINE = re.compile(r'^(?P<name>[^:]+): (?P<how>compiled|loaded) (?P<n>\d+) signature\(s\)'
                   r'.* in (?P<s>[\d.]+) s \((?P<path>.+)\)$')
@@ -26,7 +27,7 @@ LINE = re.compile(r'^(?P<name>[^:]+): (?P<how>compiled|loaded) (?P<n>\d+) signat
 
 def _prepare() -> dict:
     argv = readme_lines.readme_argv('emfc-compile-kernels')
-    result = subprocess.run(argv, capture_output=True, text=True, timeout=900,
+    result = subprocess.run(argv, capture_output=True, text=True, timeout=scaled(900),
                             env=ros_harness.child_environment())
     assert result.returncode == 0, result.stdout + result.stderr
     kernels = {}
@@ -61,7 +62,7 @@ def test_the_kernels_compile_into_site_packages_and_are_reused():
              'stats = _jitted().stats\n'
              'print(stats.cache_hits.total(), stats.cache_misses.total(), stats.cache_path)\n')
     result = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True,
-                            timeout=300, env=ros_harness.child_environment(), cwd='/')
+                            timeout=scaled(300), env=ros_harness.child_environment(), cwd='/')
     assert result.returncode == 0, result.stderr
     hits, misses, path = result.stdout.split(maxsplit=2)
     assert (int(hits), int(misses)) == (1, 0), result.stdout

@@ -16,11 +16,12 @@ from pathlib import Path
 import pytest
 
 import ros_harness
+from ros_harness import scaled
 
 REPO = Path(__file__).resolve().parents[2]
 #: A fresh install has no numba cache: the plant simulator compiles its kernel (12-17 s
 #: measured here) before its node appears.
-FIRST_START_TIMEOUT_S = 180.0
+FIRST_START_TIMEOUT_S = scaled(180.0)
 NODES = ['signal_generator', 'plant_simulator', 'recorder', 'identifier', 'daq_bridge']
 IGNORE = shutil.ignore_patterns('.venv', 'build', 'install', 'log', '.git', '__pycache__',
                                 '*.egg-info', 'out', '.pytest_cache', '.hypothesis', 'bench')
@@ -78,13 +79,13 @@ def test_pip_install_into_a_prefix(tmp_path, processes, executor, ros_context):
     # --ignore-installed: otherwise pip uninstalls the copy in the running environment.
     subprocess.run([sys.executable, '-m', 'pip', 'install', '-q', '--no-deps', '--ignore-installed',
                     '--no-build-isolation', '--prefix', str(prefix), str(src)],
-                   check=True, timeout=300, cwd=tmp_path)
+                   check=True, timeout=scaled(300), cwd=tmp_path)
     site = prefix / 'lib' / f'python{sys.version_info[0]}.{sys.version_info[1]}' / \
         'site-packages'
     env = {'AMENT_PREFIX_PATH': str(prefix), 'PYTHONPATH': str(site)}
     where = subprocess.run([sys.executable, '-c', 'import emfc_ros; print(emfc_ros.__file__)'],
                            env=ros_harness.child_environment(env), cwd=tmp_path,
-                           capture_output=True, text=True, check=True, timeout=60).stdout
+                           capture_output=True, text=True, check=True, timeout=scaled(60)).stdout
     assert where.startswith(str(site)), where
     for name in NODES:
         exe = _assert_resolves(prefix, name)
@@ -95,7 +96,7 @@ def test_pip_install_into_a_prefix(tmp_path, processes, executor, ros_context):
 def _colcon_env(install: Path) -> dict:
     script = f'. "{install}/local_setup.sh" && env -0'
     out = subprocess.run(['sh', '-c', script], capture_output=True, check=True,
-                         timeout=60, env=ros_harness.child_environment(),
+                         timeout=scaled(60), env=ros_harness.child_environment(),
                          cwd=install.parent).stdout
     env = dict(item.split('=', 1) for item in out.decode().split('\0') if '=' in item)
     return {k: env[k] for k in ('AMENT_PREFIX_PATH', 'PYTHONPATH', 'PATH') if k in env}
@@ -112,7 +113,7 @@ def test_colcon_build(tmp_path, processes, executor, ros_context, symlink):
            '--build-base', str(ws / 'build'), '--install-base', str(ws / 'install')]
     if symlink:
         cmd.append('--symlink-install')
-    result = subprocess.run(cmd, cwd=ws, capture_output=True, text=True, timeout=600,
+    result = subprocess.run(cmd, cwd=ws, capture_output=True, text=True, timeout=scaled(600),
                             env=ros_harness.child_environment())
     assert result.returncode == 0, result.stdout + result.stderr
     prefix = ws / 'install' / 'emfc_ros'

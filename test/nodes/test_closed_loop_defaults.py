@@ -25,11 +25,12 @@ import yaml
 from emfc_ros.nodes.convert import (BLOCK_QOS, block_to_msg, LATCHED_QOS, msg_to_block,
                                     msg_to_description)
 import ros_harness
+from ros_harness import scaled
 
 REPO = Path(__file__).resolve().parents[2]
 #: A fresh install compiles the numba kernels on the first start.
-START_TIMEOUT_S = 180.0
-TIMEOUT_S = 30.0
+START_TIMEOUT_S = scaled(180.0)
+TIMEOUT_S = scaled(30.0)
 RATE_HZ = 10000.0           # the node's default sample rate
 
 

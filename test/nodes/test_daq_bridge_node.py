@@ -28,8 +28,9 @@ from emfc_ros.nodes.convert import (
     BLOCK_QOS, block_to_msg, LATCHED_QOS, msg_to_block, msg_to_description)
 from emfc_ros.nodes.daq_bridge import DaqBridgeNode
 import ros_harness
+from ros_harness import scaled
 
-TIMEOUT_S = 20.0
+TIMEOUT_S = scaled(20.0)
 RATE = 10000.0
 INPUTS = ['coil_setpoint_V', 'load_changer_setpoint_V', 'coil_current_A', 'position_m']
 DAC_LSB_V = 20.0 / 65536
@@ -628,7 +629,7 @@ def test_effort_commands_reach_the_coil_and_time_out(executor, ros_context):
         and len(states) >= 5, TIMEOUT_S)
     assert states[-1].name == ['lever'] and len(states[-1].effort) == 1
     start = probe.blocks[-1][0]
-    deadline = time.monotonic() + 0.6
+    deadline = time.monotonic() + scaled(0.6)
     while time.monotonic() < deadline:
         commands.publish(Float64MultiArray(data=[0.02]))
         ros_harness.spin_until(executor, lambda: False, 0.02)
@@ -736,7 +737,7 @@ def test_the_readme_key_commands_run_as_typed(executor, ros_context, processes, 
     repo = Path(__file__).resolve().parents[2]
     keygen, emulator_line, bridge_line = _readme_block('authenticate every datagram')
     (tmp_path / 'config').symlink_to(repo / 'config')
-    subprocess.run(['bash', '-c', keygen], cwd=tmp_path, check=True, timeout=60,
+    subprocess.run(['bash', '-c', keygen], cwd=tmp_path, check=True, timeout=scaled(60),
                    env=ros_harness.child_environment())
     assert len(bytes.fromhex((tmp_path / 'device.key').read_text())) == 32
     assert (tmp_path / 'device.key').stat().st_mode & 0o777 == 0o600

@@ -31,10 +31,11 @@ from emfc_ros.core.run_plan import load_plan
 from emfc_ros.core.signals import experiment_from_config
 import readme_lines
 import ros_harness
+from ros_harness import scaled
 
 REPO = Path(__file__).resolve().parents[2]
 DAC_LSB_V = 20.0 / 65536
-RUN_TIMEOUT_S = 240
+RUN_TIMEOUT_S = scaled(240)
 
 
 def _run(args, cwd, timeout_s=RUN_TIMEOUT_S):
@@ -211,7 +212,7 @@ def test_bridge_run_on_the_emulator_matches_the_simulator_target(tmp_path):
     identify = shutil.which('emfc-identify') or str(Path(sys.executable).parent /
                                                     'emfc-identify')
     refused = subprocess.run([identify, str(blind), '-o', str(tmp_path / 'x')],
-                             capture_output=True, text=True, timeout=600,
+                             capture_output=True, text=True, timeout=scaled(600),
                              env=ros_harness.child_environment(), cwd=tmp_path)
     assert refused.returncode == 2, refused.stdout[-2000:] + refused.stderr[-2000:]
     assert '--load-mass-kg' in refused.stderr and 'load_mass_kg' in refused.stderr
@@ -224,7 +225,7 @@ def test_bridge_run_on_the_emulator_matches_the_simulator_target(tmp_path):
     told = subprocess.run([identify, str(blind), '-o', str(tmp_path / 'told'),
                            '--load-mass-kg', repr(results['configuration']['load_mass_kg']),
                            '--load-changer-coupled', 'true'],
-                          capture_output=True, text=True, timeout=600,
+                          capture_output=True, text=True, timeout=scaled(600),
                           env=ros_harness.child_environment(), cwd=tmp_path)
     assert told.returncode == 0, told.stdout[-2000:] + told.stderr[-2000:]
     back = yaml.safe_load((tmp_path / 'told' / 'results.yaml').read_text())
@@ -271,7 +272,7 @@ def test_unknown_bridge_parameter_is_refused_with_its_key(tmp_path):
     doc['run']['bridge']['balance_file'] = str(config_file('balance_default.yaml'))
     doc['run']['bridge']['parameters']['udp.device_prot'] = 5555
     result = _run([str(_write_plan(tmp_path, 'plan.yaml', doc)), '-o', str(tmp_path / 'o')],
-                  cwd=tmp_path, timeout_s=120)
+                  cwd=tmp_path, timeout_s=scaled(120))
     assert result.returncode == 2, result.stderr
     assert 'run.bridge.parameters.udp.device_prot' in result.stderr
     assert 'Traceback' not in result.stderr
@@ -311,7 +312,7 @@ def test_a_keyed_bridge_run_authenticates_the_emulator_the_runner_starts(tmp_pat
     # A key file the others can read is refused before anything starts, with the reason.
     key.chmod(0o644)
     result = _run([str(_write_plan(tmp_path, 'plan.yaml', doc)), '-o', str(tmp_path / 'o2')],
-                  cwd=tmp_path, timeout_s=120)
+                  cwd=tmp_path, timeout_s=scaled(120))
     assert result.returncode != 0
     assert 'chmod 600' in result.stdout + result.stderr
     assert 'Traceback' not in result.stderr

@@ -22,8 +22,9 @@ import yaml
 from emfc_ros.core.bag import read_metadata
 from emfc_ros.core.paths import config_file
 import ros_harness
+from ros_harness import scaled
 
-RUN_TIMEOUT_S = 240.0
+RUN_TIMEOUT_S = scaled(240.0)
 
 
 def _runner() -> str:
@@ -124,7 +125,7 @@ def test_ctrl_c_while_recording_exits_130_with_one_line_and_a_closed_bag(tmp_pat
                                   RUN_TIMEOUT_S), proc.output()[-3000:]
     assert proc.alive(), proc.output()[-3000:]
     os.kill(proc.pid, signal.SIGINT)
-    proc.proc.wait(timeout=60)
+    proc.proc.wait(timeout=scaled(60))
     output = proc.output()
     assert proc.proc.returncode == 130, output[-3000:]
     assert 'Traceback' not in output and 'KeyboardInterrupt' not in output

@@ -50,9 +50,10 @@ from emfc_ros.core.device.backend import default_device_config
 from emfc_ros.core.device.function_generator import GeneratorSpec
 from emfc_ros.core.paths import config_file
 import ros_harness
+from ros_harness import scaled
 
-RUN_TIMEOUT_S = 240
-PLAN_TIMEOUT_S = 600.0
+RUN_TIMEOUT_S = scaled(240)
+PLAN_TIMEOUT_S = scaled(600.0)
 assert RUN_TIMEOUT_S < PLAN_TIMEOUT_S
 
 
@@ -192,7 +193,7 @@ def test_a_stalled_host_fails_the_run_and_the_bag_is_refused(tmp_path, emulator)
     assert all(f['topic'] == '/emfc/measurements/description' for f in faults)
     identify = subprocess.run([sys.executable, '-m', 'emfc_ros.cli.identify', str(bag),
                                '-o', str(tmp_path / 'ident'), '--load-mass-kg', '0'],
-                              capture_output=True, text=True, timeout=300, env=_env(),
+                              capture_output=True, text=True, timeout=scaled(300), env=_env(),
                               cwd=tmp_path)
     assert identify.returncode == 1, identify.stdout + identify.stderr
     assert 'did not apply the excitation' in identify.stderr, identify.stderr
@@ -279,7 +280,7 @@ class Forger:
         data = self.message(proto.STATUS)
         rid = self.rid
         self.sock.sendto(data, self.device)
-        deadline = time.monotonic() + 5.0
+        deadline = time.monotonic() + scaled(5.0)
         while time.monotonic() < deadline:
             ready, _, _ = select.select([self.sock], [], [], deadline - time.monotonic())
             if not ready:

@@ -26,8 +26,9 @@ from emfc_ros.nodes.flow_control import (AckFlowControl, BATCH_BYTES, EVERY_BLOC
                                          MAX_BLOCKS)
 from emfc_ros.nodes.plant_simulator import PlantSimulatorNode
 import ros_harness
+from ros_harness import scaled
 
-TIMEOUT_S = 15.0
+TIMEOUT_S = scaled(15.0)
 BLOCK = 1000
 #: Sample data of one block (3 channels of float64) [B].
 BLOCK_BYTES = BLOCK * 3 * 8
@@ -75,7 +76,7 @@ def _stalled_run(tmp_path, processes, executor, ros_context, flow_control):
     pub = Publisher(ros_context, block=BLOCK)
     executor.add_node(pub.node)
     diag = Diagnostics(pub.node)
-    flow = AckFlowControl(pub.blocks if flow_control else None, timeout_s=5.0)
+    flow = AckFlowControl(pub.blocks if flow_control else None, timeout_s=scaled(5.0))
     assert ros_harness.spin_until(
         executor, lambda: pub.blocks.get_subscription_count() >= 1, TIMEOUT_S), proc.output()
     pub.publish(5)
@@ -83,15 +84,21 @@ def _stalled_run(tmp_path, processes, executor, ros_context, flow_control):
         executor, lambda: diag.values.get('messages /t/excitation') == '5', TIMEOUT_S), \
         (diag.values, proc.output())
     os.kill(proc.pid, signal.SIGSTOP)
-    # The recorder goes on after 1 s, whatever the publisher does meanwhile (from another
-    # process: a wait for acknowledgements holds this one's GIL).
-    resume = subprocess.Popen(['sh', '-c', f'sleep 1; kill -CONT {proc.pid}'])
+    # With flow control the recorder goes on after 1 s, whatever the publisher does meanwhile
+    # (from another process: a wait for acknowledgements holds this one's GIL); without, it
+    # goes on once all the blocks were published, so that they overran the writer's history
+    # (100) however fast this machine publishes.
+    resume = subprocess.Popen(['sh', '-c', f'sleep 1; kill -CONT {proc.pid}']) \
+        if flow_control else None
     try:
         for _ in range(STALLED_BLOCKS):
             pub.publish(1)
             flow.published(BLOCK_BYTES)
     finally:
-        assert resume.wait(timeout=TIMEOUT_S) == 0
+        if resume is None:
+            os.kill(proc.pid, signal.SIGCONT)
+        else:
+            assert resume.wait(timeout=TIMEOUT_S) == 0
     published = 5 + STALLED_BLOCKS
     assert ros_harness.spin_until(
         executor, lambda: int(diag.values.get('messages /t/excitation', 0))
@@ -164,8 +171,8 @@ def test_batches_are_large_enough_for_a_prompt_acknowledgement(
 def test_the_owner_plant_waits_for_a_stalled_recorder_and_says_so(
         tmp_path, processes, executor, ros_context):
     # The plant in owner mode (in this process), fed 100 blocks at once, while the recorder
-    # (another process) is stopped for 3 s: the first wait ends at its 2 s bound (counted,
-    # WARN), the next returns when the recorder goes on, and the recorder loses nothing.
+    # (another process) is stopped until the first wait ended at its 2 s bound (counted,
+    # WARN); the waits return when the recorder goes on, and the recorder loses nothing.
     bag = tmp_path / 'plant'
     proc = _start_recorder(tmp_path, processes, bag, '/flow/measurements')
     plant = PlantSimulatorNode(context=ros_context, namespace='/flow', parameter_overrides=[
@@ -186,16 +193,21 @@ def test_the_owner_plant_waits_for_a_stalled_recorder_and_says_so(
     hold = plant._session.sim.hold_setpoints_V[:, None]
     n_blocks = 100
     os.kill(proc.pid, signal.SIGSTOP)
-    resume = subprocess.Popen(['sh', '-c', f'sleep 3; kill -CONT {proc.pid}'])
+    # The recorder stays stopped until the plant reports a wait that ended at its bound
+    # (then the plant is not in a wait: this process runs), however long the plant took to
+    # get there; the history (100) holds all the blocks.
     try:
         for k in range(n_blocks):
             pub.publish(block_to_msg(k * 1000, 10000.0, 1, np.repeat(hold, 1000, axis=1)))
         assert ros_harness.spin_until(
-            executor, lambda: int(plant_diag.values.get('blocks_out', 0)) >= n_blocks
-            and int(recorder_diag.values.get('messages /flow/measurements', 0)) >= n_blocks,
-            TIMEOUT_S + 10.0), (plant_diag.values, recorder_diag.values, proc.output())
+            executor, lambda: int(plant_diag.values.get('ack_timeouts', 0)) >= 1,
+            TIMEOUT_S + scaled(10.0)), (plant_diag.values, recorder_diag.values, proc.output())
     finally:
-        assert resume.wait(timeout=TIMEOUT_S) == 0
+        os.kill(proc.pid, signal.SIGCONT)
+    assert ros_harness.spin_until(
+        executor, lambda: int(plant_diag.values.get('blocks_out', 0)) >= n_blocks
+        and int(recorder_diag.values.get('messages /flow/measurements', 0)) >= n_blocks,
+        TIMEOUT_S + scaled(10.0)), (plant_diag.values, recorder_diag.values, proc.output())
     values = plant_diag.values
     print('plant flow control:', {k: v for k, v in values.items() if k.startswith('ack')})
     assert int(values['ack_waits']) == n_blocks // EVERY_BLOCKS

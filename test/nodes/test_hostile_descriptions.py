@@ -22,8 +22,9 @@ from emfc_ros.nodes.identifier import IdentifierNode
 from emfc_ros.nodes.recorder import RecorderNode
 from emfc_ros.nodes.weighing import WeighingNode
 import ros_harness
+from ros_harness import scaled
 
-TIMEOUT_S = 20.0
+TIMEOUT_S = scaled(20.0)
 VALID = StreamDescription('measurements', 10000.0, 1000,
                           (Channel('coil_current_precise_A', 'A'), Channel('position_m', 'm')))
 #: Each is refused: too deep to parse at all, parses but nested too deep, a deep ``extra``

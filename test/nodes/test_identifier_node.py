@@ -28,9 +28,10 @@ from emfc_ros.nodes.identifier import IdentifierNode
 from emfc_ros.nodes.plant_simulator import PlantSimulatorNode
 from emfc_ros.nodes.signal_generator import SignalGeneratorNode
 import ros_harness
+from ros_harness import scaled
 
-TIMEOUT_S = 30.0
-IDENTIFY_TIMEOUT_S = 300.0
+TIMEOUT_S = scaled(30.0)
+IDENTIFY_TIMEOUT_S = scaled(300.0)
 SECTION_S = 2.0
 
 
@@ -67,7 +68,7 @@ def short_bag(tmp_path_factory):
     runner = shutil.which('emfc-experiment') or str(Path(sys.executable).parent /
                                                     'emfc-experiment')
     result = subprocess.run([runner, str(plan), '-o', str(folder / 'run'), '--no-identify'],
-                            capture_output=True, text=True, timeout=600,
+                            capture_output=True, text=True, timeout=scaled(600),
                             env=ros_harness.child_environment())
     assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
     return folder / 'run' / 'bag'

@@ -45,6 +45,7 @@ from emfc_ros.nodes.convert import (
 import launch_tool
 import readme_lines
 import ros_harness
+from ros_harness import scaled
 
 REPO = Path(__file__).resolve().parents[2]
 STUB = REPO / 'test' / 'launch_stub'
@@ -61,8 +62,8 @@ NODE_PARAMETERS = {'signal_generator': signal_generator.PARAMETERS,
                    'daq_bridge': daq_bridge.PARAMETERS,
                    'weighing': weighing.PARAMETERS}
 #: The first plant start after an install compiles the simulator kernel (12-17 s measured).
-START_TIMEOUT_S = 180.0
-TIMEOUT_S = 60.0
+START_TIMEOUT_S = scaled(180.0)
+TIMEOUT_S = scaled(60.0)
 DAC_LSB_V = 20.0 / 65536
 SHIPPED_SAMPLES = 400000
 #: How long a recorder may take to get the last clock ticks after the last block: a tick its
@@ -360,7 +361,7 @@ def typed(argv, log_dir, cwd=None, env=None):
     return launch_tool.TypedProcess(launch_tool.as_started(argv), log_dir, env=env, cwd=cwd)
 
 
-def run_to_end(argv, cwd, timeout_s=300.0):
+def run_to_end(argv, cwd, timeout_s=scaled(300.0)):
     """A documented command that ends by itself (``emfc-identify``), as typed."""
     return subprocess.run(launch_tool.as_started(argv), capture_output=True, text=True,
                           cwd=cwd, timeout=timeout_s, env=ros_harness.child_environment())
@@ -977,7 +978,7 @@ def _echoed_readings(text):
 def _zero(session, node, argv):
     """Call the zero service as the documented line does (as typed with the real tool)."""
     if launch_tool.real_cli():
-        result = subprocess.run(argv, capture_output=True, text=True, timeout=60,
+        result = subprocess.run(argv, capture_output=True, text=True, timeout=scaled(60),
                                 env=ros_harness.child_environment())
         return 'success=True' in result.stdout, result.stdout + result.stderr
     client = node.create_client(Trigger, argv[3])
@@ -1088,7 +1089,7 @@ def test_the_real_ros2_launch_shows_and_checks_the_arguments(tools, tmp_path, fi
                      file_name == 'replay.launch.py' else ['use_sim_time:=false'])
         return
     shown = subprocess.run(['ros2', 'launch', PACKAGE, file_name, '--show-args'],
-                           capture_output=True, text=True, timeout=120,
+                           capture_output=True, text=True, timeout=scaled(120),
                            env=ros_harness.child_environment())
     assert shown.returncode == 0, shown.stderr
     for name in declared:
@@ -1108,7 +1109,8 @@ def test_the_stand_in_is_not_installed():
     """The installed package never depends on the test stand-in (nor imports it)."""
     result = subprocess.run(
         [sys.executable, '-c', 'import importlib.util as u; s = u.find_spec("launch_ros"); '
-         'print(s.origin if s else "")'], capture_output=True, text=True, cwd='/', timeout=60)
+         'print(s.origin if s else "")'], capture_output=True, text=True, cwd='/',
+        timeout=scaled(60))
     assert result.returncode == 0, result.stderr
     assert 'launch_stub' not in result.stdout
     # The real launch_ros only where the real command line is installed.

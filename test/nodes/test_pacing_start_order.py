@@ -27,12 +27,13 @@ from emfc_ros.core.start_gate import readiness_text
 from emfc_ros.nodes.convert import (
     BLOCK_QOS, CONTROL_QOS, LATCHED_QOS, msg_to_block, msg_to_description)
 import ros_harness
+from ros_harness import scaled
 
 REPO = Path(__file__).resolve().parents[2]
 LAUNCH_FILE = REPO / 'launch' / 'sim_experiment.launch.py'
 #: The first start after an install compiles the simulator kernel (12-17 s measured).
-START_TIMEOUT_S = 180.0
-TIMEOUT_S = 60.0
+START_TIMEOUT_S = scaled(180.0)
+TIMEOUT_S = scaled(60.0)
 #: The pause between the two starts [s]: longer than discovery (1-3 s), so that a window sent
 #: before the consumer matched would have been lost.
 PAUSE_S = 3.0

@@ -25,8 +25,9 @@ from emfc_ros.nodes.convert import (
 from emfc_ros.nodes.plant_simulator import PlantSimulatorNode
 from emfc_ros.nodes.signal_generator import SignalGeneratorNode
 import ros_harness
+from ros_harness import scaled
 
-TIMEOUT_S = 20.0
+TIMEOUT_S = scaled(20.0)
 RATE = 10000.0
 
 

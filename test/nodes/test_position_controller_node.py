@@ -17,8 +17,9 @@ from std_msgs.msg import Float64MultiArray
 from emfc_ros.nodes.plant_simulator import PlantSimulatorNode
 from emfc_ros.nodes.position_controller import PositionControllerNode
 import ros_harness
+from ros_harness import scaled
 
-TIMEOUT_S = 60.0
+TIMEOUT_S = scaled(60.0)
 SENSOR_RANGE_M = 100e-6
 
 

@@ -35,11 +35,12 @@ from emfc_ros.core.stream_counts import CUSTOM_DATA_KEY, from_mapping, problems
 from emfc_ros.nodes.convert import BLOCK_QOS, LATCHED_QOS, msg_to_block, msg_to_description
 import readme_lines
 import ros_harness
+from ros_harness import scaled
 
 REPO = Path(__file__).resolve().parents[2]
 #: A fresh install compiles the numba kernels on the first start.
-START_TIMEOUT_S = 180.0
-TIMEOUT_S = 60.0
+START_TIMEOUT_S = scaled(180.0)
+TIMEOUT_S = scaled(60.0)
 SHIPPED_TRAJECTORY_SAMPLES = 400000
 
 
@@ -335,7 +336,7 @@ def test_the_table_emulator_lines_open_and_close_the_loop(
 
 
 def test_emfc_demo_as_typed(tmp_path):
-    result = run(readme_lines.readme_argv('emfc-demo'), cwd=tmp_path, timeout_s=300)
+    result = run(readme_lines.readme_argv('emfc-demo'), cwd=tmp_path, timeout_s=scaled(300))
     assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
     out = tmp_path / 'out' / 'demo'
     for name in ('excitation.npy', 'excitation.csv', 'summary.md', 'summary.json'):
@@ -368,7 +369,7 @@ def test_generate_model_summary_and_simulate_as_typed(tmp_path):
     # emfc-simulate EXCITATION -o OUT with the excitation just written.
     assert readme_lines.readme_command('emfc-simulate EXCITATION -o OUT')
     simulate = run(['emfc-simulate', 'excitation.csv', '-o', 'response.npy'], cwd=folder,
-                   timeout_s=300)
+                   timeout_s=scaled(300))
     assert simulate.returncode == 0, simulate.stderr
     response = np.load(folder / 'response.npy')
     assert SHIPPED_TRAJECTORY_SAMPLES in response.shape
@@ -386,7 +387,7 @@ def test_another_plan_as_typed(tmp_path):
         'simulator': {'state_rate_Hz': 100.0},
         'identification': {'enabled': False}}}))
     result = run(readme_lines.readme_argv('emfc-experiment my_plan.yaml'), cwd=tmp_path,
-                 timeout_s=600)
+                 timeout_s=scaled(600))
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     out = tmp_path / 'out' / 'run1'
     assert (out / 'bag' / 'metadata.yaml').is_file() and (out / 'summary.md').is_file()
@@ -412,7 +413,7 @@ def test_a_benchmark_as_typed():
     results = REPO / 'bench' / 'results' / 'signals.json'
     kept = results.read_bytes() if results.is_file() else None   # a user's earlier figures
     try:
-        result = run(shlex.split(lines[0]), cwd=REPO, timeout_s=600,
+        result = run(shlex.split(lines[0]), cwd=REPO, timeout_s=scaled(600),
                      env={'EMFC_VENV': sys.prefix})
         assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
         assert 'setup_env:' not in result.stderr, result.stderr      # the venv was current
@@ -429,7 +430,7 @@ def test_the_test_tool_with_pytest_args_as_typed():
     """``./tools/test.sh [pytest args]`` with a small test file as the argument."""
     assert readme_lines.readme_command('./tools/test.sh [pytest args]')
     readme_lines.check_tools_venv()
-    result = run(['./tools/test.sh', 'test/test_core_purity.py'], cwd=REPO, timeout_s=600,
+    result = run(['./tools/test.sh', 'test/test_core_purity.py'], cwd=REPO, timeout_s=scaled(600),
                  env={'EMFC_VENV': sys.prefix})
     assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
     assert 'setup_env:' not in result.stderr, result.stderr

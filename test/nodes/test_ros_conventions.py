@@ -27,6 +27,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_srvs.srv import Trigger
 
 import ros_harness
+from ros_harness import scaled
 
 NODES = ('signal_generator', 'plant_simulator', 'position_controller', 'recorder',
          'identifier', 'weighing', 'daq_bridge')
@@ -37,9 +38,9 @@ CLASSES = {'signal_generator': 'SignalGeneratorNode', 'plant_simulator': 'PlantS
 #: Start-up values that keep a node quiet (nothing published at a high rate, no bag).
 QUIET = {'signal_generator': [('autostart', False)], 'recorder': [('autostart', False)],
          'daq_bridge': [('autostart', False)]}
-TIMEOUT_S = 30.0
+TIMEOUT_S = scaled(30.0)
 #: The plant's first start after an install compiles its kernel (12-17 s measured).
-START_TIMEOUT_S = 180.0
+START_TIMEOUT_S = scaled(180.0)
 ROSOUT_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
@@ -335,7 +336,7 @@ def test_help_on_every_executable(name):
     fixed = read_only_names(name)
     purpose = mod.__doc__.strip().splitlines()[0]
     for argv in (ros_harness.node_executable(name) + ['--help'], [console_script(name), '-h']):
-        result = subprocess.run(argv, capture_output=True, text=True, timeout=120,
+        result = subprocess.run(argv, capture_output=True, text=True, timeout=scaled(120),
                                 env=ros_harness.child_environment())
         assert result.returncode == 0, result.stderr
         out = result.stdout
@@ -379,7 +380,7 @@ print('HELP WITHOUT INIT', len(sys.argv) - 1)
 
 def test_help_does_not_initialise_rclpy():
     result = subprocess.run([sys.executable, '-c', HELP_WITHOUT_INIT, *NODES],
-                            capture_output=True, text=True, timeout=120,
+                            capture_output=True, text=True, timeout=scaled(120),
                             env=ros_harness.child_environment())
     assert result.returncode == 0, result.stderr
     assert f'HELP WITHOUT INIT {len(NODES)}' in result.stdout

@@ -25,8 +25,9 @@ from emfc_ros.nodes.convert import (
     BLOCK_QOS, CONTROL_QOS, LATCHED_QOS, msg_to_block, msg_to_description)
 from emfc_ros.nodes.signal_generator import SignalGeneratorNode
 import ros_harness
+from ros_harness import scaled
 
-TIMEOUT_S = 15.0
+TIMEOUT_S = scaled(15.0)
 
 SMALL = {
     'sample_rate_Hz': 10000.0,

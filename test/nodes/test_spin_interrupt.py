@@ -16,6 +16,7 @@ import sys
 import time
 
 import ros_harness
+from ros_harness import scaled
 
 SWALLOW = """
 import ctypes, os, signal, sys, time
@@ -58,7 +59,7 @@ sys.exit(run_node(Late, []))
 """
 
 
-def _run(script: str, timeout_s: float = 60.0) -> subprocess.CompletedProcess:
+def _run(script: str, timeout_s: float = scaled(60.0)) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
                           timeout=timeout_s, env=ros_harness.child_environment())
 
@@ -95,12 +96,12 @@ def test_plant_simulator_interrupted_while_compiling_exits_zero(tmp_path):
         time.sleep(1.0)
         assert proc.poll() is None
         os.kill(proc.pid, signal.SIGINT)
-        out, _ = proc.communicate(timeout=60.0)
+        out, _ = proc.communicate(timeout=scaled(60.0))
         out = first + out
     finally:
         if proc.poll() is None:
             proc.kill()
-            proc.wait(timeout=10.0)
+            proc.wait(timeout=scaled(10.0))
     assert proc.returncode == 0, out
     assert 'Traceback' not in out, out
     # The compilation was cut short, not waited out: nothing was saved to the cache.

@@ -36,14 +36,15 @@ import yaml
 from emfc_ros.core.signals import load_experiment_file
 import netns_hosts
 import ros_harness
+from ros_harness import scaled
 
 REPO = Path(__file__).resolve().parents[2]
 SHARE_CONFIG = Path(sys.prefix, 'share', 'emfc_ros', 'config')
 NAMESPACE = '/emfc'
 #: A fresh install compiles the simulator kernel at the emulator's first start (about 15 s).
-START_TIMEOUT_S = 240.0
-STOP_TIMEOUT_S = 30.0
-IDENTIFY_TIMEOUT_S = 300.0
+START_TIMEOUT_S = scaled(240.0)
+STOP_TIMEOUT_S = scaled(30.0)
+IDENTIFY_TIMEOUT_S = scaled(300.0)
 #: Measured after the last excitation sample before the recorder is stopped [samples].
 SETTLE_SAMPLES = 2000
 DAC_LSB_V = 20.0 / 65536
@@ -531,7 +532,7 @@ def test_the_link_check_sees_subnet_multicast(tmp_path, discovery_range, multica
             procs.append(netns_hosts.HostProcess(host, [sys.executable, '-c', TALKER, name],
                                                  tmp_path, env))
         for proc in procs:
-            proc.proc.wait(timeout=60.0)
+            proc.proc.wait(timeout=scaled(60.0))
         # Either way the two talkers found each other across the link ...
         for proc in procs:
             assert "['talker_a', 'talker_b']" in proc.output(), proc.output()

@@ -18,10 +18,11 @@ import sys
 import pytest
 
 import ros_harness
+from ros_harness import scaled
 
 REPO = Path(__file__).resolve().parents[2]
 #: The first start after an install compiles the numba kernels.
-TIMEOUT_S = 240.0
+TIMEOUT_S = scaled(240.0)
 READING = re.compile(r'^t\s+([\d.]+) s\s+mass\s+([+-][\d.]+) g\s+u\s+([\d.]+) mg\s+'
                      r'(stable|unstable|uncalibrated)\b')
 
@@ -149,7 +150,7 @@ def test_weighing_through_the_bridge_and_the_device_emulator(processes):
     (['--duration', 'nan'], '--duration'),
 ])
 def test_bad_arguments_exit_2_naming_them(processes, argv, text):
-    code, output = run(processes, argv, timeout_s=60.0)
+    code, output = run(processes, argv, timeout_s=scaled(60.0))
     assert code == 2, output
     assert output.startswith('emfc-weigh: error: ') and text in output, output
     assert len(output.strip().splitlines()) == 1

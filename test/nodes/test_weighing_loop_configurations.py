@@ -19,8 +19,9 @@ from emfc_ros.nodes.plant_simulator import PlantSimulatorNode
 from emfc_ros.nodes.position_controller import PositionControllerNode
 from emfc_ros.nodes.weighing import WeighingNode
 import ros_harness
+from ros_harness import scaled
 
-TIMEOUT_S = 120.0
+TIMEOUT_S = scaled(120.0)
 MG = 1e-6
 
 

@@ -26,8 +26,9 @@ from emfc_ros.nodes.convert import (BLOCK_QOS, block_to_msg, BlockMessageBuilder
                                     description_to_msg, LATCHED_QOS)
 from emfc_ros.nodes.weighing import WeighingNode
 import ros_harness
+from ros_harness import scaled
 
-TIMEOUT_S = 30.0
+TIMEOUT_S = scaled(30.0)
 RATE_HZ = 20000.0
 BLOCK = 1000
 LOOP = LoopConfig()     # the default in-loop design: 10 kHz, 130 Hz, no notch
@@ -138,7 +139,7 @@ class Balance:
         assert self.spin(future.done)
         return future.result()
 
-    def wait_diagnostic(self, predicate, timeout_s=5.0):
+    def wait_diagnostic(self, predicate, timeout_s=scaled(5.0)):
         """Wait for a diagnostics status of the weighing node that satisfies ``predicate``."""
         seen = len(self.diagnostics)
         assert self.spin(lambda: any(predicate(d) for d in self.diagnostics[seen:]),
