@@ -13,6 +13,23 @@ import ros_harness
 
 ros_harness.isolate_environment()
 
+#: Folders whose tests start real nodes over real DDS (or ROS command-line tools).
+ROS_FOLDERS = ('nodes', 'install')
+#: Fixtures that bring up ROS.
+ROS_FIXTURES = {'ros_context', 'executor', 'processes'}
+
+
+def pytest_collection_modifyitems(config, items):
+    """Mark every test that needs DDS ``ros`` (``-m 'not ros'`` runs the rest, no DDS)."""
+    root = Path(__file__).resolve().parent
+    for item in items:
+        try:
+            folder = Path(str(item.fspath)).resolve().relative_to(root).parts[0]
+        except ValueError:
+            folder = ''
+        if folder in ROS_FOLDERS or ROS_FIXTURES & set(getattr(item, 'fixturenames', ())):
+            item.add_marker(pytest.mark.ros)
+
 
 @pytest.fixture
 def ros_context():
