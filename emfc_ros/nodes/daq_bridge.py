@@ -222,13 +222,12 @@ class DaqBridgeNode(Node):
 
     def status_values(self) -> Dict[str, Any]:
         """
-        What ``~/status`` says: the state and why.
+        What ``~/status`` says (:meth:`BridgeSession.status_values`; state error without one).
 
         Returns
         -------
         dict
-            ``state``, ``error``, ``last_error``, ``stream_epoch``, ``faults`` (count),
-            ``device_busy`` (a request to the device under way).
+            The status.
         """
         if self.session is None:
             return {'state': 'error', 'error': self._error, 'last_error': '',

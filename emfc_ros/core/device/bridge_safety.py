@@ -34,15 +34,18 @@ class SafetyPath:
         return [GeneratorSpec('constant', offset_V=float(v)) for v in self.safe]
 
     def _restore_generator(self) -> None:
-        """The generator back to its configuration (worker thread)."""
-        if self.state != 'running' or self.estop:
-            return
+        """The generator back to its configuration after a safe-output hold (worker)."""
+        if self.state == 'running' and not self.estop:
+            self._send_generator('function generator restored after a safe-output hold',
+                                 'its outputs may still be at their safe values')
+
+    def _send_generator(self, what: str, consequence: str) -> None:
+        """Send the configured specs; a refusal is a ``generator_unconfirmed`` fault."""
         try:
             self.backend.set_function_generator(self.specs)
         except (DeviceError, DeviceConfigError) as exc:
             self._worker_fault('generator_unconfirmed', f'the device did not confirm the '
-                               f'function generator restored after a safe-output hold ({exc}): '
-                               'its outputs may still be at their safe values')
+                               f'{what} ({exc}): {consequence}')
 
     def set_generator(self, specs: Sequence[GeneratorSpec]) -> None:
         """
@@ -62,14 +65,9 @@ class SafetyPath:
             self._jobs.submit('set_generator', self._set_generator)
 
     def _set_generator(self) -> None:
-        if self.state != 'running' or self.estop or self.tripped:
-            return
-        try:
-            self.backend.set_function_generator(self.specs)
-        except (DeviceError, DeviceConfigError) as exc:
-            self._worker_fault('generator_unconfirmed', f'the device did not confirm the '
-                               f'changed function generator ({exc}): it may still output the '
-                               'previous one')
+        if self.state == 'running' and not (self.estop or self.tripped):
+            self._send_generator('changed function generator',
+                                 'it may still output the previous one')
 
     def _worker_fault(self, kind: str, message: str) -> None:
         """A fault the worker saw: latched by the caller's next tick."""
