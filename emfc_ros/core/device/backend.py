@@ -1,5 +1,5 @@
 """
-The device back-end interface: configuration dataclasses, the Protocol and the by-name table.
+The device back-end interface: the configuration dataclasses and the Protocol.
 
 A back-end is the host's view of one data-acquisition device (the FPGA of the paper): it is
 configured with a sample rate, input channels (name, unit and the scaling between raw
