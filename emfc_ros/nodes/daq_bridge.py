@@ -56,8 +56,7 @@ from emfc_ros.core.device.bridge_session import BridgeSession
 from emfc_ros.core.device.bridge_settings import (bridge_settings, check_runtime,
                                                   generator_specs, parameter_mapping)
 from emfc_ros.core.device.faults import Fault
-from emfc_ros.core.device_contract import (array_command_effort, CommandError, JOINT,
-                                           joint_command_effort)
+from emfc_ros.core.device_contract import JOINT
 from emfc_ros.core.errors import BlockError, ConfigError, EmfcError
 from emfc_ros.core.start_gate import readiness_text
 from emfc_ros.nodes.convert import (
@@ -287,18 +286,12 @@ class DaqBridgeNode(Node):
         self.session.on_excitation(block)
 
     def _on_joint_command(self, msg: JointState) -> None:
-        self._command(joint_command_effort, list(msg.name), list(msg.effort))
+        if self.session is not None:
+            self.session.on_joint_command(list(msg.name), list(msg.effort))
 
     def _on_array_command(self, msg: Float64MultiArray) -> None:
-        self._command(array_command_effort, list(msg.data))
-
-    def _command(self, parse, *fields) -> None:
-        if self.session is None:
-            return
-        try:
-            self.session.on_command(parse(*fields))
-        except CommandError as exc:
-            self.session.on_command(None, str(exc))
+        if self.session is not None:
+            self.session.on_array_command(list(msg.data))
 
     def _on_set_parameters(self, params: List[Parameter]) -> SetParametersResult:
         funcgen: Dict[str, Any] = {}

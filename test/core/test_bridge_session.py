@@ -510,6 +510,22 @@ def test_an_effort_command_joins_the_setpoints_and_times_out(make):
     assert rig.count('command_malformed') == 1 and rig.session.last_error == 'why'
 
 
+def test_command_messages_follow_the_device_contract(make):
+    """Both topics' messages parsed by the contract: one effort for lever, else refused."""
+    rig = make()
+    s = rig.session
+    s.on_joint_command(['other', 'lever'], [1.0, 0.02])
+    assert s.command.effort_N == 0.02
+    s.on_array_command([0.03])
+    assert s.command.effort_N == 0.03
+    s.on_joint_command(['other'], [1.0])
+    assert 'lever' in s.last_error
+    s.on_array_command([1.0, 2.0])
+    assert s.last_error.startswith('commands needs exactly 1 value')
+    s.on_array_command([float('nan')])
+    assert rig.count('command_malformed') == 3 and s.command.effort_N == 0.03
+
+
 def test_diagnostic_levels(make):
     rig = make()
     s = rig.session

@@ -10,14 +10,15 @@ offset and remap, and the effort command.
 
 from __future__ import annotations
 
-from typing import Optional
+from typing import Optional, Sequence
 
 import numpy as np
 
 from emfc_ros.core.blocks import Block, Continuity
 from emfc_ros.core.device.clock import earliest_start_ns
 from emfc_ros.core.device.errors import DeviceConfigError, DeviceError
-from emfc_ros.core.device_contract import state_sample_offsets
+from emfc_ros.core.device_contract import (array_command_effort, CommandError,
+                                           joint_command_effort, state_sample_offsets)
 from emfc_ros.core.errors import BlockError
 from emfc_ros.core.excitation_queue import DROPPED, ExcitationQueue
 from emfc_ros.core.model.actuation import coil_setpoint_for_force_V
@@ -390,3 +391,31 @@ class StreamPath:
             return
         with self._lock:
             self.command.set(effort_N, self._now_s())
+
+    def on_joint_command(self, names: Sequence[str], efforts: Sequence[float]) -> None:
+        """
+        A ``joint_commands`` message: the effort of joint ``lever`` [N], or a refusal.
+
+        Parameters
+        ----------
+        names, efforts : sequence
+            The message's joint names and efforts [N].
+        """
+        try:
+            self.on_command(joint_command_effort(names, efforts))
+        except CommandError as exc:
+            self.on_command(None, str(exc))
+
+    def on_array_command(self, data: Sequence[float]) -> None:
+        """
+        A ``commands`` message: exactly one effort [N], or a refusal.
+
+        Parameters
+        ----------
+        data : sequence of float
+            The message's data.
+        """
+        try:
+            self.on_command(array_command_effort(data))
+        except CommandError as exc:
+            self.on_command(None, str(exc))
