@@ -53,8 +53,8 @@ from std_srvs.srv import Trigger
 
 from emfc_ros.core.blocks import Block, StreamDescription
 from emfc_ros.core.device.bridge_session import BridgeSession
-from emfc_ros.core.device.bridge_settings import (bridge_settings, check_runtime,
-                                                  generator_specs, parameter_mapping)
+from emfc_ros.core.device.bridge_settings import (bridge_settings, generator_specs,
+                                                  parameter_mapping, runtime_problem)
 from emfc_ros.core.device.faults import Fault
 from emfc_ros.core.device_contract import JOINT
 from emfc_ros.core.errors import BlockError, ConfigError, EmfcError
@@ -69,7 +69,6 @@ from emfc_ros.nodes.params import declare_table, refuse_unknown
 from emfc_ros.nodes.spin import node_main
 
 STATE_QOS = QoSProfile(depth=1000)
-LEVELS = {0: b'\x00', 1: b'\x01', 2: b'\x02'}
 
 
 class DaqBridgeNode(Node):
@@ -197,12 +196,12 @@ class DaqBridgeNode(Node):
     def diagnostics_due(self) -> None:
         """Publish ``/diagnostics`` now."""
         if self.session is None:
-            values = {'state': 'error', 'error': self._error, 'last_error': self._error,
-                      'backend': str(self._param('backend'))}
-            level, message = 2, self._error
+            level, message, values = 2, self._error, self.diagnostic_values()
         else:
             level, message, values = self.session.diagnostic_status()
-        self._pub_diag.publish(node_diagnostics(self, 'device', LEVELS[level], message, values))
+        # the session's levels are DiagnosticStatus's numbers (bridge_health)
+        self._pub_diag.publish(node_diagnostics(self, 'device', bytes([level]), message,
+                                                values))
 
     def open_excitation(self) -> None:
         """Subscribe to the excitation (the session's wait for listeners ended)."""
@@ -300,9 +299,10 @@ class DaqBridgeNode(Node):
             if p.name.startswith('funcgen.'):
                 funcgen[p.name] = p.value
             elif p.name in RUNTIME:
-                reason = check_runtime(p.name, p.value, rate)
-                if reason is not None:
-                    return SetParametersResult(successful=False, reason=reason)
+                problem = runtime_problem(p.name, p.value, rate)
+                if problem is not None:
+                    return SetParametersResult(successful=False,
+                                               reason=f'{p.name} {problem}')
             elif p.name in PARAMETERS:
                 return SetParametersResult(successful=False, reason=f'{p.name} is fixed at '
                                            'start-up; restart the node with the new value')

@@ -25,9 +25,6 @@ GROWN_PERIOD_S = 1.0
 class SafetyPath:
     """The safety state machine of a bridge session (module docstring); mixed into it."""
 
-    _grown_pending = False
-    _grown_at = float('-inf')
-
     # -- safety ------------------------------------------------------------------------------
 
     def _safe_specs(self) -> List[GeneratorSpec]:

@@ -120,6 +120,9 @@ class BridgeSession(StreamPath, SafetyPath):
         self.command = EffortCommand()
         self.last_position_m = 0.0
         self._logged_at: Dict[str, float] = {}
+        # a latched fault that grew, not yet in the description; when it was last published
+        self._grown_pending = False
+        self._grown_at = -math.inf
         self._reset_stream_state()
 
     # -- time and logging ------------------------------------------------------------------

@@ -102,9 +102,9 @@ class BridgeSettings:
     resolution: Dict[str, Dict[str, float]]
 
 
-def check_runtime(name: str, value: Any, sample_rate_Hz: float) -> Optional[str]:
+def runtime_problem(name: str, value: Any, sample_rate_Hz: float) -> Optional[str]:
     """
-    Why a run-time value is refused, or None.
+    What is wrong with a run-time value (``must be ...``), or None.
 
     Parameters
     ----------
@@ -118,15 +118,15 @@ def check_runtime(name: str, value: Any, sample_rate_Hz: float) -> Optional[str]
     Returns
     -------
     str or None
-        The reason naming the parameter and its range.
+        The problem with its range, without the name (the caller names it).
     """
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return f'{name} must be a number, got {value!r}'
+        return f'must be a number, got {value!r}'
     low, high, closed = RUNTIME_LIMITS[name]
     high = min(high, sample_rate_Hz)
     v = float(value)
     if not math.isfinite(v) or not (low <= v if closed else low < v) or not v <= high:
-        return f'{name} must be in {"[" if closed else "("}{low}, {high}], got {value!r}'
+        return f'must be in {"[" if closed else "("}{low}, {high}], got {value!r}'
     return None
 
 
@@ -183,7 +183,7 @@ def _device_mapping(params: Mapping[str, Any]) -> Dict[str, Any]:
         value = params.get(name)
         if value is None:
             continue
-        cfg[key] = value if isinstance(value, (str, bool, int, float)) else list(value)
+        cfg[key] = value
     for entry in registry.BACKENDS.values():
         cfg[entry.name] = {o.key: params[f'{entry.name}.{o.key}'] for o in entry.options
                            if params.get(f'{entry.name}.{o.key}') is not None}
@@ -238,9 +238,9 @@ def _settings(params: Mapping[str, Any]) -> BridgeSettings:
                                              f'{mode!r}')
     runtime = {}
     for name in RUNTIME:
-        reason = check_runtime(name, params.get(name), math.inf)
-        if reason is not None:
-            raise ConfigError(name, reason.split(' ', 1)[1])
+        problem = runtime_problem(name, params.get(name), math.inf)
+        if problem is not None:
+            raise ConfigError(name, problem)
         runtime[name] = float(params[name])
     try:
         balance = load_balance(str(params.get('balance_file') or '') or None)
@@ -250,10 +250,10 @@ def _settings(params: Mapping[str, Any]) -> BridgeSettings:
     try:
         pan = declared_pan_load(float(params.get('pan.load_mass_kg', -1.0)),
                                 str(params.get('pan.load_changer_coupled', '')))
-        rate = runtime['state_rate_Hz']
-        if rate > config.sample_rate_Hz:
-            raise ConfigError('state_rate_Hz', f'must be in [0, {config.sample_rate_Hz}] Hz, '
-                                               f'got {rate}')
+        problem = runtime_problem('state_rate_Hz', runtime['state_rate_Hz'],
+                                  config.sample_rate_Hz)       # its top: the device's rate
+        if problem is not None:
+            raise ConfigError('state_rate_Hz', problem)
         specs = generator_specs(config, params) if mode == 'function_generator' else \
             [GeneratorSpec()] * len(config.outputs)
         resolution = _resolution(config, backend, params.get('input_noise_rms'))

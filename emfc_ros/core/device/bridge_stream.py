@@ -147,16 +147,18 @@ class StreamPath:
 
     def _states(self, block: Block) -> None:
         """The lever's position, velocity and coil force at the joint-state samples."""
+        rate = self.runtime['state_rate_Hz']
         s, n, rows, balance = block.samples, block.n_samples, self.rows, self.settings.balance
+        # without joint states only the last sample's position is needed
+        s_pos = s if rate > 0.0 else s[:, -1:]
         if 'position_m' in rows:
-            position = s[rows['position_m']]
+            position = s_pos[rows['position_m']]
         elif 'sensor_V' in rows:
-            position = np.asarray(balance.sensor.position_m(s[rows['sensor_V']]))
+            position = np.asarray(balance.sensor.position_m(s_pos[rows['sensor_V']]))
         else:
-            position = np.full(n, np.nan)
+            position = np.full(s_pos.shape[1], np.nan)
         # the effort command's setpoint depends on it, with or without joint states
         self.last_position_m = float(position[-1]) if np.isfinite(position[-1]) else 0.0
-        rate = self.runtime['state_rate_Hz']
         if rate <= 0.0:
             return
         velocity = np.gradient(position) * self.rate if n > 1 else np.zeros(n)
