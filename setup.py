@@ -83,6 +83,9 @@ setup(
         # Kept as an alias for old install lines: numba is a requirement now.
         'fast': ['numba>=0.59'],
         'plot': ['matplotlib>=3.7'],
+        # NI-DAQmx devices (issue 24): NI's client, with gRPC for the NI gRPC Device Server
+        # and the emulated device; the rest of the package does not need it.
+        'daqmx': ['nidaqmx[grpc]>=1.1'],
         'test': ['pytest>=7', 'hypothesis>=6', 'mcap>=1.1', 'mcap-ros2-support>=0.5'],
     },
     zip_safe=True,

@@ -75,7 +75,7 @@ if [ ! -f "$deps_stamp" ]; then
   echo "setup_env: installing dependencies into $venv (first run takes a few minutes)" >&2
   # colcon needs setuptools<80 (design brief section 2).
   "$venv/bin/python" -m pip install -q 'setuptools<80' wheel 2>&1 | quiet_pip
-  "$venv/bin/python" -m pip install -q "$here[plot,test]" \
+  "$venv/bin/python" -m pip install -q "$here[plot,test,daqmx]" \
     'colcon-common-extensions' 'flake8>=6' 'flake8-quotes' 'flake8-import-order' \
     'flake8-docstrings' 'pep8-naming' 2>&1 | quiet_pip
   rm -f "$venv"/.emfc-deps-* "$venv"/.emfc-package-*
