@@ -16,6 +16,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Dict, Tuple
 
+from emfc_ros.core.device.backend import DEFAULT_OUTPUTS
+
 #: The first device's name, as NI's tools name it.
 DEFAULT_DEVICE = 'Dev1'
 #: Input ranges of an X Series analog input, +/- [V].
@@ -69,7 +71,7 @@ DEFAULT_AI_WIRING: Tuple[AiWire, ...] = (
 )
 
 #: The outputs: the coil amplifier's input on ao0, the load changer's on ao1.
-DEFAULT_AO_WIRING: Tuple[Tuple[str, str], ...] = (('coil_V', 'ao0'), ('load_changer_V', 'ao1'))
+DEFAULT_AO_WIRING: Tuple[Tuple[str, str], ...] = tuple(zip(DEFAULT_OUTPUTS, ('ao0', 'ao1')))
 
 
 def ai_wiring_by_name() -> Dict[str, AiWire]:
