@@ -33,6 +33,16 @@ INVALID_PHYS_CHAN_NAME = -201237
 FUNCTION_NOT_SUPPORTED_FOR_DEVICE = -209876
 #: The device has no watchdog timer.
 WATCHDOG_TIMER_NOT_SUPPORTED = -200662
+#: A task of that name exists already.
+DUPLICATE_TASK = -200089
+#: A property's requested value is outside what the device allows.
+INVALID_ATTRIBUTE_VALUE = -200077
+#: Analog input and analog output channels in one task.
+MULTI_CHAN_TYPES_IN_TASK = -200559
+#: A terminal that cannot be the source of this clock or trigger.
+INVALID_ROUTING_SOURCE_TERMINAL_NAME = -200040
+#: The resource (the AI timing engine) is used by another task.
+RESOURCE_ALREADY_RESERVED = -200022
 
 #: NI's texts (the first sentence or two of the driver's message).
 TEXTS: Dict[int, str] = {
@@ -64,6 +74,14 @@ TEXTS: Dict[int, str] = {
     INVALID_PHYS_CHAN_NAME: 'Physical channel specified does not exist on this device.',
     FUNCTION_NOT_SUPPORTED_FOR_DEVICE: 'The specified function is not supported by the device.',
     WATCHDOG_TIMER_NOT_SUPPORTED: 'Watchdog timer is not supported by this device.',
+    DUPLICATE_TASK: 'Task cannot be created, because a task with this name already exists.',
+    INVALID_ATTRIBUTE_VALUE: 'Requested value is not a supported value for this property.',
+    MULTI_CHAN_TYPES_IN_TASK: ('Task cannot contain a channel of the specified type, because '
+                               'it contains channels of a different type.'),
+    INVALID_ROUTING_SOURCE_TERMINAL_NAME: 'Source terminal to be routed could not be found '
+                                          'on the device.',
+    RESOURCE_ALREADY_RESERVED: 'The specified resource is reserved. The operation could not '
+                               'be completed as specified.',
 }
 
 #: The latched fault kind (:data:`emfc_ros.core.device.faults.KINDS`) of each code that means
