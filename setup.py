@@ -42,6 +42,7 @@ COMMANDS = {
     'emfc-experiment': 'emfc_ros.cli.experiment:console_main',
     'emfc-identify': 'emfc_ros.cli.identify:main',
     'emfc-device-emulator': 'emfc_ros.cli.device_emulator:main',
+    'emfc-daqmx-emulator': 'emfc_ros.cli.daqmx_emulator:main',
     'emfc-model-summary': 'emfc_ros.cli.model_summary:main',
     'emfc-simulate': 'emfc_ros.cli.simulate:main',
     'emfc-weigh': 'emfc_ros.cli.weigh:main',

@@ -27,9 +27,11 @@ BACKEND_MODULES = {f'{DEVICE}.{name}_backend' for name in BACKENDS}
 #: Modules on the way to the hardware: they must not lean on the simulator or weighing.
 HARDWARE_PATH = ('emfc_ros.nodes.daq_bridge', 'emfc_ros.nodes.convert', 'emfc_ros.nodes.params',
                  'emfc_ros.nodes.spin', 'emfc_ros.nodes.flow_control')
-#: The device modules that are the simulation (a back-end like any other, and the emulator
-#: of a UDP device built on it).
-SIMULATED_DEVICE = (f'{DEVICE}.sim_backend', f'{DEVICE}.emulator')
+#: The device modules that are the simulation (a back-end like any other, the emulator of a
+#: UDP device built on it, and the simulated balance on the emulated NI-DAQmx device's
+#: terminals).
+SIMULATED_DEVICE = (f'{DEVICE}.sim_backend', f'{DEVICE}.emulator',
+                    f'{DEVICE}.daqmx_emulator.plant')
 
 
 def _modules() -> Dict[str, pathlib.Path]:

@@ -43,6 +43,8 @@ MULTI_CHAN_TYPES_IN_TASK = -200559
 INVALID_ROUTING_SOURCE_TERMINAL_NAME = -200040
 #: The resource (the AI timing engine) is used by another task.
 RESOURCE_ALREADY_RESERVED = -200022
+#: A property the device does not have.
+ATTR_NOT_SUPPORTED = -200197
 
 #: NI's texts (the first sentence or two of the driver's message).
 TEXTS: Dict[int, str] = {
@@ -80,6 +82,8 @@ TEXTS: Dict[int, str] = {
                                'it contains channels of a different type.'),
     INVALID_ROUTING_SOURCE_TERMINAL_NAME: 'Source terminal to be routed could not be found '
                                           'on the device.',
+    ATTR_NOT_SUPPORTED: 'Specified property is not supported by the device or is not '
+                        'applicable to the task.',
     RESOURCE_ALREADY_RESERVED: 'The specified resource is reserved. The operation could not '
                                'be completed as specified.',
 }

@@ -276,6 +276,7 @@ class Device:
             task.produced = task.consumed = 0
             task.data = []
             self.plant.start(task.rate_Hz)
+            now = self._now = max(self._now, self.clock())     # the plant may take a while
             for other in self.tasks.values():
                 if other.kind == 'ao' and other.armed:
                     other.armed = False
