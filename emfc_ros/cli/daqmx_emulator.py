@@ -30,8 +30,6 @@ import threading
 import time
 from typing import Any, List, Optional, Tuple
 
-import numpy as np
-
 from emfc_ros.core.device.daqmx_wiring import DEFAULT_DEVICE
 from emfc_ros.core.device.emulator import check_bind_host
 from emfc_ros.core.model.balance_file import load_balance
@@ -137,8 +135,6 @@ def main(argv: Optional[List[str]] = None) -> int:
                    'load_changer_coupled': bool(args.load_changer_coupled),
                    'noise': not args.no_noise}
         plant = BalancePlant(params, args.seed, simulator_options=options)
-        plant.start(10000.0)                # compile (or load) the kernels before serving
-        plant.step(np.zeros((2, 1)))
         device = Device(plant, args.device, clock=time.monotonic)
         servicer = DaqmxServicer(device)
         address = f'[{host}]:{port}' if ':' in host else f'{host}:{port}'

@@ -212,7 +212,9 @@ def bridge_parameters(plan: RunPlan, balance_path: Path, load_kg: float,
     if bridge.backend == 'sim':
         params.update({'sim.load_mass_kg': float(load_kg),
                        'sim.load_changer_coupled': bool(bridge.load_changer_coupled)})
-    if device_address is not None:
+    if device_address is not None and plan.bridge.backend == 'daqmx':
+        params['daqmx.grpc_address'] = f'{device_address[0]}:{int(device_address[1])}'
+    elif device_address is not None:
         params.update({'udp.device_host': device_address[0],
                        'udp.device_port': int(device_address[1])})
     return params
@@ -501,10 +503,9 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
             from emfc_ros.nodes.daq_bridge import DaqBridgeNode
             address = None
             if plan.bridge.start_emulator:
-                emulator = _start_emulator(plan, params, load_kg, coupled)
+                emulator = _start_emulator(plan, params, load_kg, coupled, balance_path)
                 address = emulator.address
-                _progress(f'  device emulator (in this process) on {address[0]}:'
-                          f'{address[1]}, {plan.bridge.emulator.channels} analog inputs')
+                _progress(f'  {emulator.what} on {address[0]}:{address[1]}')
             values = bridge_parameters(plan, balance_path, load_kg, address)
             doc = _plan_document(plan, load_kg, executor_kind)
             doc['run']['bridge']['parameters'] = values     # as given to the node
@@ -808,8 +809,15 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
             emulator.stop()
 
 
-def _start_emulator(plan: RunPlan, params: Any, load_kg: float, coupled: bool) -> Any:
-    """Start the device emulator in this process (loopback only), loaded like the plan."""
+def _start_emulator(plan: RunPlan, params: Any, load_kg: float, coupled: bool,
+                    balance_path: Path) -> Any:
+    """Start the device emulator (loopback only), loaded like the plan."""
+    if plan.bridge.backend == 'daqmx':
+        from emfc_ros.cli.daqmx_process import DaqmxEmulatorProcess
+        emu = plan.bridge.emulator
+        return DaqmxEmulatorProcess(emu.host, emu.port, seed=emu.seed, load_mass_kg=load_kg,
+                                    load_changer_coupled=coupled, noise=emu.noise,
+                                    balance_file=balance_path)
     from emfc_ros.core.device.auth import KeyFileError, load_key_file
     from emfc_ros.core.device.emulator import DeviceEmulator
 
@@ -824,6 +832,8 @@ def _start_emulator(plan: RunPlan, params: Any, load_kg: float, coupled: bool) -
                                       'noise': emu.noise, 'quantisation': emu.quantisation},
                                   key=load_key_file(key_file) if key_file else None)
         emulator.start()
+        emulator.what = (f'device emulator (in this process), {emu.channels} analog '
+                         'inputs,')
     except KeyFileError as exc:
         raise RuntimeError(f'cannot start the device emulator: {exc}') from None
     except OSError as exc:
@@ -835,8 +845,12 @@ def _start_emulator(plan: RunPlan, params: Any, load_kg: float, coupled: bool) -
 def _device_summary(plan: RunPlan, emulator: Any) -> str:
     bridge = plan.bridge
     if emulator is not None:
-        return (f'daq_bridge, udp back-end, device emulator started by the runner on '
-                f'{emulator.host}:{emulator.port}')
+        return (f'daq_bridge, {bridge.backend} back-end, {emulator.what.rstrip(",")} '
+                f'started by the runner on {emulator.host}:{emulator.port}')
+    if bridge.backend == 'daqmx':
+        where = bridge.parameters.get('daqmx.grpc_address') or 'the local NI-DAQmx driver'
+        return (f'daq_bridge, daqmx back-end, device '
+                f'{bridge.parameters.get("daqmx.device", "Dev1")} via {where}')
     if bridge.backend == 'udp':
         return (f'daq_bridge, udp back-end, device at '
                 f'{bridge.parameters.get("udp.device_host", "127.0.0.1")}:'

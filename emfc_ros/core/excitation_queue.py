@@ -254,3 +254,58 @@ class ExcitationQueue:
                     'far_future_blocks': self.guard.refused,
                     'non_finite_blocks': self.non_finite_blocks})
         return out
+
+
+def fill_outputs(queue: Optional[ExcitationQueue], first: int, n: int, out: np.ndarray,
+                 unstreamed_end: int) -> Tuple[int, int, int]:
+    """
+    Write a device's streamed outputs for samples ``first .. first + n`` from its queue.
+
+    ``out`` holds the safe values on entry; where the stream covers a sample its value
+    replaces them. Queued samples behind the clock are dropped as late; samples the stream
+    does not cover once it has begun are underruns (left at the safe values). Before the
+    host's first setpoint (the queue has seen no block) every sample is left safe and the
+    samples are remembered as unstreamed: a late first block's samples there were output
+    safe, underruns too where they were not the safe values.
+
+    Parameters
+    ----------
+    queue : ExcitationQueue or None
+        The epoch's setpoint queue (None: no stream).
+    first, n : int
+        The device samples to fill.
+    out : numpy.ndarray
+        ``(outputs, n)``, the safe values on entry; filled in place.
+    unstreamed_end : int
+        End of the samples output before the first setpoint block came.
+
+    Returns
+    -------
+    late : int
+        Queued samples dropped because their device samples had passed.
+    underrun : int
+        Samples output at the safe values for want of setpoints.
+    unstreamed_end : int
+        The new end of the unstreamed samples.
+    """
+    if queue is None or queue.tracker.expected is None:
+        return 0, 0, first + n                   # the host has not streamed yet
+    late = underrun = 0
+    if queue.head_index < first:                 # queued samples behind the clock
+        late = min(first - queue.head_index, queue.queued)
+        if late:
+            head = queue.head_index
+            values = queue.pop(late)[0]
+            # Late samples of a first frame were output at the safe values before the frame
+            # came, when no stream was there to run dry: underruns too, unless they were the
+            # safe values themselves (what was output is what was asked for); later ones
+            # were counted as underruns when their blocks ran.
+            missed = values[:, :max(0, min(head + late, unstreamed_end) - head)]
+            underrun += int(np.count_nonzero(np.any(missed != queue.safe, axis=0)))
+    lead = max(0, queue.head_index - first)      # before the stream's next sample
+    if lead >= n:
+        return late, underrun, unstreamed_end
+    take = min(n - lead, queue.queued)
+    if take:
+        out[:, lead:lead + take] = queue.pop(take)[0]
+    return late, underrun + n - lead - take, unstreamed_end

@@ -32,6 +32,10 @@ RUN_KEYS = ('name', 'target', 'namespace', 'experiment_files', 'block_size', 'si
 #: The runner's executors (``run.executor``): rclpy's EventsExecutor (rclpy >= 7.1.4, Jazzy;
 #: the default) or its wait-set SingleThreadedExecutor.
 EXECUTORS = ('events', 'single_threaded')
+#: Back-ends whose device the runner can emulate (``start_emulator``).
+EMULATED_BACKENDS = ('udp', 'daqmx')
+#: Analog inputs of the emulated NI-DAQmx device (``emfc-daqmx-emulator``: ai0:7).
+DAQMX_EMULATOR_INPUTS = 8
 BRIDGE_KEYS = ('backend', 'parameters_file', 'parameters', 'start_emulator', 'emulator',
                'balance_file', 'load_mass_kg', 'load_changer_coupled', 'pacing',
                'window_blocks', 'lead_blocks', 'settle_s')
@@ -196,7 +200,7 @@ class BridgePlan:
     Attributes
     ----------
     backend : str
-        ``'sim'``, ``'udp'`` or ``'replay'``.
+        ``'sim'``, ``'udp'``, ``'replay'`` or ``'daqmx'``.
     parameters : dict
         daq_bridge parameters by dotted name: the runner's defaults, then the parameters
         file, then the ``parameters`` mapping (the runner adds ``sample_rate_Hz``,
@@ -204,7 +208,8 @@ class BridgePlan:
     parameters_file : pathlib.Path or None
         The ROS parameters file the parameters were read from.
     start_emulator : bool
-        Start the device emulator in the runner's process (udp back-end, loopback only).
+        Start the device emulator (loopback only): for the udp back-end in the runner's
+        process, for the daqmx back-end ``emfc-daqmx-emulator`` as a process of its own.
     emulator : EmulatorPlan
         The emulator's settings.
     balance_file : pathlib.Path or None
@@ -625,6 +630,8 @@ def bridge_plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
                           f'{"window" if pacing == "consumer" else "lead"}_blocks')
     if pacing == 'consumer':
         check_consumer_window(window, block_size, rate, params, origin, path)
+    if backend == 'daqmx':
+        check_daqmx_lead(params, origin, rate, path)
 
     start_emulator = get_bool(cfg, 'start_emulator', path, default=False)
     emu_cfg = get_mapping(cfg, 'emulator', path, default={})
@@ -632,9 +639,10 @@ def bridge_plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
     reject_unknown(emu_cfg, EMULATOR_KEYS, emu_path)
     if emu_cfg and not start_emulator:
         raise ConfigError(emu_path, 'only used with start_emulator: true')
-    if start_emulator and backend != 'udp':
-        raise ConfigError(f'{path}.start_emulator', 'starts a UDP device emulator: needs '
-                          f"backend 'udp', got {backend!r}")
+    if start_emulator and backend not in EMULATED_BACKENDS:
+        raise ConfigError(f'{path}.start_emulator', 'starts a device emulator: needs backend '
+                          f"'udp' (emfc-device-emulator) or 'daqmx' (emfc-daqmx-emulator), "
+                          f'got {backend!r}')
     host = get_str(emu_cfg, 'host', emu_path, default='127.0.0.1')
     try:
         host = check_bind_host(host)
@@ -649,7 +657,10 @@ def bridge_plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
         seed=get_int(emu_cfg, 'seed', emu_path, default=0, minimum=0),
         noise=get_bool(emu_cfg, 'noise', emu_path, default=True),
         quantisation=get_bool(emu_cfg, 'quantisation', emu_path, default=True))
-    if start_emulator and emulator.channels < len(inputs):
+    if start_emulator and backend == 'daqmx' and len(inputs) > DAQMX_EMULATOR_INPUTS:
+        raise ConfigError(f'{path}.parameters.inputs', f'the emulated NI-DAQmx device has '
+                          f'{DAQMX_EMULATOR_INPUTS} analog inputs, got {len(inputs)} inputs')
+    if start_emulator and backend == 'udp' and emulator.channels < len(inputs):
         raise ConfigError(f'{emu_path}.channels', f'{emulator.channels} analog inputs cannot '
                           f'carry the {len(inputs)} inputs {list(inputs)}')
 
@@ -657,7 +668,7 @@ def bridge_plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
     if balance:
         check_balance_file(_resolve(balance, base_dir), f'{path}.balance_file')
     load = cfg.get('load_mass_kg', 'balance')
-    if load == 'balance' and backend == 'udp' and not start_emulator:
+    if load == 'balance' and backend in EMULATED_BACKENDS and not start_emulator:
         # On a real balance the model's balancing mass is a guess, and the identification
         # needs what is really on the pan (issue 12): the plan declares the mass pieces.
         raise ConfigError(f'{path}.load_mass_kg', 'on a real device give the mass on the pan '
@@ -673,6 +684,47 @@ def bridge_plan_from_mapping(cfg: Mapping[str, Any], base_dir: Path,
         load_changer_coupled=get_bool(cfg, 'load_changer_coupled', path, default=True),
         pacing=pacing, window_blocks=window, lead_blocks=lead,
         settle_s=get_float(cfg, 'settle_s', path, default=0.2, minimum=0.0, maximum=60.0))
+
+
+def check_daqmx_lead(params: Mapping[str, Any], origin: Mapping[str, str], rate_Hz: float,
+                     path: str = 'run.bridge') -> None:
+    """
+    Refuse an ``excitation_lead_s`` the daqmx back-end would turn into late setpoints.
+
+    The back-end commits outputs ``daqmx.output_lead_s`` ahead of the device, and the bridge
+    writes setpoints from the end of the last block it received (up to one device block and
+    one read behind the device): its lead must cover all three, with 50 ms to spare.
+
+    Parameters
+    ----------
+    params : Mapping
+        The bridge parameters.
+    origin : Mapping
+        Where each parameter came from, for the message.
+    rate_Hz : float
+        The sample rate [Hz].
+    path : str
+        The plan's path, for messages.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``excitation_lead_s`` and the smallest lead that works.
+    """
+    from emfc_ros.core.device.registry import entry
+    defaults = {o.key: o.default for o in entry('daqmx').options}
+    device_block = int(params.get('block_size', 1000))
+    output_lead = float(params.get('daqmx.output_lead_s', defaults['output_lead_s']))
+    read_period = float(params.get('daqmx.read_period_s', defaults['read_period_s']))
+    need = device_block / rate_Hz + output_lead + read_period + 0.05
+    lead = float(params.get('excitation_lead_s', BRIDGE_NODE_DEFAULTS['excitation_lead_s']))
+    if lead < need - 1e-9:
+        raise ConfigError(origin.get('excitation_lead_s', f'{path}.parameters.excitation_lead_s'),
+                          f'{lead:g} s is too short for the daqmx back-end: it commits the '
+                          f'outputs {output_lead:g} s ahead (daqmx.output_lead_s) and the bridge '
+                          f'writes from the last block received ({device_block} samples, '
+                          f'{device_block / rate_Hz:g} s, plus a read of {read_period:g} s): '
+                          f'use at least {need:g} s')
 
 
 def check_consumer_window(window_blocks: int, block_size: int, rate_Hz: float,

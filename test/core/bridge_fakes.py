@@ -76,6 +76,10 @@ class FakeBackend:
     def health(self):
         return dict(self.health_values)
 
+    def take_faults(self):
+        found, self.reported = getattr(self, 'reported', []), []
+        return found
+
     def close(self):
         self.calls.append('close')
 

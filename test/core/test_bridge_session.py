@@ -242,6 +242,19 @@ def test_late_excitation_latches_one_fault_and_counts_the_samples(make):
     assert rig.count('faults') == 1
 
 
+def test_a_fault_the_back_end_reports_latches_once_with_its_message(make):
+    rig = make()
+    rig.feed(0)
+    text = 'writing the outputs: NI-DAQmx error -200290: The generation has stopped'
+    rig.fake.reported = [('device_underrun', 120, text, False)]
+    rig.session.tick()
+    assert rig.faults() == [('device_underrun', 120, None, False)]
+    assert rig.session.monitor.faults[0].message == text
+    rig.fake.reported = [('device_underrun', 300, text, False)]     # the same kind again
+    rig.session.tick()
+    assert rig.count('faults') == 1
+
+
 def test_a_stream_taken_after_its_sample_0_is_excitation_start_missing(make):
     rig = make()
     rig.clock.ns = at(150)

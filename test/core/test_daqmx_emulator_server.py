@@ -7,6 +7,8 @@ gRPC port of 127.0.0.1.
 """
 
 import os
+from pathlib import Path
+import shutil
 import signal
 import subprocess
 import sys
@@ -26,6 +28,7 @@ from emfc_ros.core.device.daqmx_emulator.model import Device
 from emfc_ros.core.device.daqmx_emulator.plant import BalancePlant
 from emfc_ros.core.device.daqmx_emulator.server import DaqmxServicer, IMPLEMENTED, serve
 from emfc_ros.core.device.daqmx_wiring import resolution_V
+import readme_lines
 
 RATE = 10000.0
 STEP = resolution_V(10.0)
@@ -161,10 +164,14 @@ def test_an_unimplemented_call_is_ni_s_function_not_supported(address):
 
 
 def test_the_console_script_serves_the_device_until_sigterm():
+    # the README's span as typed, `emfc-daqmx-emulator`, with its defaults (127.0.0.1, a free
+    # port), the installed console script
+    argv = readme_lines.readme_argv('emfc-daqmx-emulator')
+    assert argv == ['emfc-daqmx-emulator']
+    script = shutil.which(argv[0]) or str(Path(sys.executable).parent / argv[0])
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
-    proc = subprocess.Popen([sys.executable, '-m', 'emfc_ros.cli.daqmx_emulator',
-                             '--listen', '127.0.0.1:0', '--seed', '22'],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    proc = subprocess.Popen([script], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=env)
     try:
         port = int(proc.stdout.readline())
         addr = f'127.0.0.1:{port}'

@@ -36,8 +36,9 @@ def _started(backend, block_size=400, **kwargs):
 
 
 def test_table_picks_backends_by_name_and_refuses_unknown_names():
+    from emfc_ros.core.device.daqmx_backend import DaqmxBackend
     assert {name: e.cls for name, e in BACKENDS.items()} == {
-        'sim': SimBackend, 'udp': UdpBackend, 'replay': ReplayBackend}
+        'sim': SimBackend, 'udp': UdpBackend, 'replay': ReplayBackend, 'daqmx': DaqmxBackend}
     sim = create_backend('sim', seed=1)
     assert isinstance(sim, SimBackend) and isinstance(sim, DeviceBackend)
     with pytest.raises(DeviceConfigError, match="'fpga'"):
@@ -269,7 +270,8 @@ def test_the_documented_mapping_builds_every_backend_with_its_documented_default
     from emfc_ros.core.device.registry import backend_from_mapping
     cfg = _documented_mapping()
     for name, entry in BACKENDS.items():
-        assert cfg[name] == {o.key: o.default for o in entry.options}, name
+        assert cfg[name] == {o.key: list(o.default) if isinstance(o.default, tuple)
+                             else o.default for o in entry.options}, name
     udp, config = backend_from_mapping(cfg)
     try:
         assert isinstance(udp, UdpBackend) and udp.device_address == ('127.0.0.1', 5005)

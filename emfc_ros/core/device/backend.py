@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Dict, Mapping, Optional, Protocol, runtime_checkable, Sequence, Tuple
+from typing import (Any, Dict, List, Mapping, Optional, Protocol, runtime_checkable, Sequence,
+                    Tuple)
 
 import numpy as np
 
@@ -466,6 +467,10 @@ class DeviceBackend(Protocol):
 
     def health(self) -> Dict[str, int]:
         """Health counters (see ``docs/device_protocol.md``)."""
+        ...  # pragma: no cover
+
+    def take_faults(self) -> List[Tuple[str, Optional[int], str, bool]]:
+        """Faults the back-end found itself since the last call, each once (kind, index...)."""
         ...  # pragma: no cover
 
     def close(self) -> None:

@@ -167,6 +167,8 @@ class SafetyPath:
             return
         with self._lock:
             found, self._worker_faults = self._worker_faults, []
+        # the back-end's own findings (a driver error: its code and text), each kind once
+        found += [f for f in self.backend.take_faults() if not self.monitor.has(f[0])]
         if found:
             self._latch([self.monitor.add(kind, index, None, message, exact)
                          for kind, index, message, exact in found])

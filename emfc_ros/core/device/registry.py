@@ -23,18 +23,20 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, Callable, Dict, Mapping, Optional, Tuple, Union
 
-from emfc_ros.core.config import (get_bool, get_float, get_int, get_mapping, get_str, join,
-                                  reject_unknown)
+from emfc_ros.core.config import (get_bool, get_float, get_float_list, get_int, get_mapping,
+                                  get_str, get_str_list, join, reject_unknown)
+from emfc_ros.core.device import daqmx_backend
 from emfc_ros.core.device.backend import (device_config_from_mapping, DEVICE_CONFIG_KEYS,
                                           DeviceBackend, DeviceConfig)
+from emfc_ros.core.device.daqmx_backend import DaqmxBackend
 from emfc_ros.core.device.errors import DeviceConfigError
 from emfc_ros.core.device.replay_backend import ReplayBackend
 from emfc_ros.core.device.sim_backend import SimBackend
 from emfc_ros.core.device.udp_backend import UdpBackend
 from emfc_ros.core.errors import ConfigError
 
-#: A parameter value: what a ROS parameter or a YAML scalar holds.
-Value = Union[bool, int, float, str]
+#: A parameter value: what a ROS parameter or a YAML scalar (or list) holds.
+Value = Union[bool, int, float, str, Tuple[str, ...], Tuple[float, ...]]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,8 +48,8 @@ class Option:
     ----------
     key : str
         The option's name, with its unit suffix where it has one.
-    default : bool, int, float or str
-        The default; its type is the option's type.
+    default : bool, int, float, str, or a tuple of str or of float
+        The default; its type is the option's type (a tuple: a list of that type).
     description : str
         What it does, with its unit and range.
     minimum, maximum : float, optional
@@ -87,6 +89,12 @@ class Option:
         ConfigError
             Naming ``<path>.<key>`` and what is allowed.
         """
+        if isinstance(self.default, tuple):
+            if self.default and isinstance(self.default[0], str):
+                return tuple(get_str_list(cfg, self.key, path, default=list(self.default)))
+            return tuple(float(v) for v in get_float_list(
+                cfg, self.key, path, default=list(self.default), minimum=self.minimum,
+                maximum=self.maximum))
         if isinstance(self.default, bool):
             return get_bool(cfg, self.key, path, default=self.default)
         if isinstance(self.default, int):
@@ -109,7 +117,8 @@ class Option:
         (float, float) or None
             The bounds, or None.
         """
-        if isinstance(self.default, bool) or self.minimum is None or self.maximum is None:
+        if isinstance(self.default, (bool, tuple)) or self.minimum is None or \
+                self.maximum is None:
             return None
         if isinstance(self.default, int):
             return int(self.minimum), int(self.maximum)
@@ -201,7 +210,19 @@ def _make_replay(cls: type, options: Dict[str, Value], balance: Any) -> DeviceBa
                speed=float(options['speed']), loop=bool(options['loop']))
 
 
+def _make_daqmx(cls: type, options: Dict[str, Value], balance: Any) -> DeviceBackend:
+    return cls(str(options['device']), options['ai_terminals'], options['ai_units_per_V'],
+               options['ai_range_V'], str(options['ai_terminal_config']),
+               options['ao_terminals'], grpc_address=str(options['grpc_address']),
+               session_prefix=str(options['session_prefix']),
+               read_period_s=float(options['read_period_s']),
+               output_lead_s=float(options['output_lead_s']),
+               input_buffer_s=float(options['input_buffer_s']),
+               watchdog=str(options['watchdog']))
+
+
 _PERIOD = dict(minimum=0.0, maximum=60.0, min_exclusive=True)
+_DAQMX_SUMMARY = 'an NI-DAQmx device through the nidaqmx client (local driver or gRPC server)'
 
 #: The back-ends by configuration name.
 BACKENDS: Dict[str, BackendEntry] = {entry.name: entry for entry in (
@@ -248,6 +269,39 @@ BACKENDS: Dict[str, BackendEntry] = {entry.name: entry for entry in (
                maximum=1e6, min_exclusive=True),
         Option('loop', False, 'replay: start over in a new epoch after the last block'),
     ), _make_replay),
+    BackendEntry('daqmx', DaqmxBackend, _DAQMX_SUMMARY, (
+        Option('device', 'Dev1', 'daqmx: NI-DAQmx device name'),
+        Option('ai_terminals', daqmx_backend.default_terminals(),
+               "daqmx: analog input of each input, in the inputs' order ('ai0')"),
+        Option('ai_units_per_V', daqmx_backend.default_units_per_V(),
+               "daqmx: SI units per volt at each input (signal conditioning), in the inputs' "
+               'order'),
+        Option('ai_range_V', daqmx_backend.default_ranges_V(),
+               'daqmx: input range of each input, +/- [V]: 0.1, 0.2, 0.5, 1, 2, 5 or 10',
+               minimum=0.1, maximum=10.0),
+        Option('ai_terminal_config', 'DEFAULT', 'daqmx: analog input terminal '
+                                                'configuration of every input',
+               choices=daqmx_backend.TERMINAL_CONFIGS),
+        Option('ao_terminals', tuple(t for _, t in daqmx_backend.DEFAULT_AO_WIRING),
+               "daqmx: analog output of each output, in the outputs' order ('ao0')"),
+        Option('grpc_address', '', 'daqmx: host:port of an NI gRPC Device Server; empty: '
+                                   'the local NI-DAQmx driver'),
+        Option('session_prefix', 'emfc', 'daqmx: prefix of the task and gRPC session names'),
+        Option('read_period_s', 0.01, 'daqmx: inputs are read and outputs topped up in '
+                                      'chunks of this length [s], (0, 1]', minimum=0.0,
+               maximum=1.0, min_exclusive=True),
+        Option('output_lead_s', 0.2, 'daqmx: outputs are written this far ahead of the '
+                                     "device's position [s] (at least 2 read periods; the "
+                                     "bridge's excitation_lead_s must exceed it by a "
+                                     'block, a read and 50 ms), (0, 10]', minimum=0.0,
+               maximum=10.0, min_exclusive=True),
+        Option('input_buffer_s', 2.0, 'daqmx: input buffer [s], (0, 600]', minimum=0.0,
+               maximum=600.0, min_exclusive=True),
+        Option('watchdog', 'auto', 'daqmx: hardware watchdog timer with the safe values as '
+                                   "expiration states: 'auto' (where the device has one), "
+                                   "'on' (required) or 'off'",
+               choices=daqmx_backend.WATCHDOG_MODES),
+    ), _make_daqmx),
 )}
 
 #: Keys of the mapping besides the device configuration's and the back-ends' own.

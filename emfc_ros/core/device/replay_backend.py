@@ -337,6 +337,17 @@ class ReplayBackend:
             return Block(block.first_sample_index, block.sample_rate_Hz, self.epoch,
                          block.samples)
 
+    def take_faults(self) -> List[Tuple[str, Optional[int], str, bool]]:
+        """
+        Faults this back-end found itself: none (the bridge reads its health counters).
+
+        Returns
+        -------
+        list
+            Empty.
+        """
+        return []
+
     def health(self) -> Dict[str, int]:
         """
         Replay counters in the shape of the other back-ends' health.

@@ -21,7 +21,7 @@ from emfc_ros.core.device.backend import (check_generator_range, DeviceConfig, f
 from emfc_ros.core.device.errors import DeviceConfigError, DeviceError
 from emfc_ros.core.device.function_generator import FunctionGenerator, GeneratorSpec
 from emfc_ros.core.errors import BlockError
-from emfc_ros.core.excitation_queue import ExcitationQueue
+from emfc_ros.core.excitation_queue import ExcitationQueue, fill_outputs
 from emfc_ros.core.model.balance_file import load_balance
 
 IDLE = 'idle'
@@ -321,28 +321,10 @@ class SimulatedDevice:
             self.counters['watchdog_trips'] += 1
 
     def _stream(self, first: int, n: int, out: np.ndarray) -> None:
-        q = self.queue
-        if q is None or q.tracker.expected is None:
-            self._unstreamed_end = first + n         # the host has not streamed yet
-            return
-        if q.head_index < first:                     # queued samples behind the clock
-            late = min(first - q.head_index, q.queued)
-            if late:
-                head = q.head_index
-                q.pop(late)
-                self.counters['setpoint_late_samples'] += late
-                # Late samples of a first frame were output at the safe values before the
-                # frame came, when no stream was there to run dry: underruns too (later ones
-                # were counted as underruns when their blocks ran).
-                self.counters['underrun_samples'] += max(
-                    0, min(head + late, self._unstreamed_end) - head)
-        lead = max(0, q.head_index - first)          # before the stream's next sample
-        if lead >= n:
-            return
-        take = min(n - lead, q.queued)
-        if take:
-            out[:, lead:lead + take] = q.pop(take)[0]
-        self.counters['underrun_samples'] += n - lead - take
+        late, underrun, self._unstreamed_end = fill_outputs(self.queue, first, n, out,
+                                                            self._unstreamed_end)
+        self.counters['setpoint_late_samples'] += late
+        self.counters['underrun_samples'] += underrun
 
     def step(self, n: int) -> Tuple[int, np.ndarray, np.ndarray]:
         """
@@ -550,6 +532,17 @@ class SimBackend:
         self._blocks += 1
         return Block(first, self.device.config.sample_rate_Hz, self.device.epoch,
                      self.device.to_si(codes))
+
+    def take_faults(self) -> List[Tuple[str, Optional[int], str, bool]]:
+        """
+        Faults this back-end found itself: none (the bridge reads its health counters).
+
+        Returns
+        -------
+        list
+            Empty.
+        """
+        return []
 
     def health(self) -> Dict[str, int]:
         """

@@ -523,6 +523,17 @@ class UdpBackend:
         """
         return proto.decode_status_reply(self.request(proto.STATUS, b'').body)
 
+    def take_faults(self) -> List[Tuple[str, Optional[int], str, bool]]:
+        """
+        Faults this back-end found itself: none (the bridge reads its health counters).
+
+        Returns
+        -------
+        list
+            Empty.
+        """
+        return []
+
     def health(self) -> Dict[str, int]:
         """
         Host counters plus what the last heartbeat reply said about the device.

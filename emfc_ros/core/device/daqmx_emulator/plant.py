@@ -49,6 +49,11 @@ class BalancePlant:
         self.sim: Any = None
         self._rows: Dict[str, int] = {}
         self.samples = 0
+        # build one now: the first build loads the compiled kernels (about a second), which
+        # would otherwise stall the device's first start
+        self.start(10000.0)
+        self.step(np.zeros((len(terminals), 1)))
+        self.sim = None
 
     def start(self, sample_rate_Hz: float) -> None:
         """

@@ -73,6 +73,8 @@ CHAN_AO = 10102
 VOLTAGE = 10322
 TASK_START, TASK_STOP, TASK_ABORT = 0, 1, 6
 WDT_RESET_TIMER, WDT_CLEAR_EXPIRATION = 0, 1
+#: Session initialization behaviours (``nidaqmx.SessionInitializationBehavior``).
+AUTO, INIT_NEW, ATTACH = 0, 1, 2
 #: Longest a read waits for samples, whatever timeout the client asks for [s].
 MAX_WAIT_S = 600.0
 
@@ -168,17 +170,37 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     # -- tasks --------------------------------------------------------------------------------
 
+    def _session(self, name: str, behavior: int) -> Tuple[str, bool]:
+        """A named session by NI's initialization behaviour: (name, new session)."""
+        exists = name in self.device.tasks
+        if exists and behavior == INIT_NEW:
+            raise DaqmxError(codes.DUPLICATE_TASK, f'Session Name: {name} (exists; attach '
+                                                   'to it or clear it)')
+        if not exists and behavior == ATTACH:
+            raise DaqmxError(codes.INVALID_TASK, f'Session Name: {name} (no such session to '
+                                                 'attach to)')
+        return name, not exists
+
     @_rpc
     def CreateTask(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """A new task (an empty name gets NI's ``_unnamedTask<n>``)."""
+        """
+        A new task, or the named session's task (NI's initialization behaviours).
+
+        ``AUTO`` attaches to an existing session of the name or creates it,
+        ``INITIALIZE_SERVER_SESSION`` creates it (an existing one is an error),
+        ``ATTACH_TO_SERVER_SESSION`` attaches (a missing one is an error). An empty name gets
+        NI's ``_unnamedTask<n>``.
+        """
         with self.lock:
             name = request.session_name
             if not name:
                 name = f'_unnamedTask<{self._unnamed}>'
                 self._unnamed += 1
-            self.device.create_task(name)
+            name, new = self._session(name, request.initialization_behavior)
+            if new:
+                self.device.create_task(name)
             return pb.CreateTaskResponse(task=Session(name=name),
-                                         new_session_initialized=True)
+                                         new_session_initialized=new)
 
     @_rpc
     def ClearTask(self, request: Any, context: Any) -> Any:  # noqa: N802
@@ -571,9 +593,11 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
                 raise DaqmxError(codes.DEV_CANNOT_BE_ACCESSED, f'Device: {request.device_name}')
             name = request.session_name or f'_unnamedTask<{self._unnamed}>'
             self._unnamed += not request.session_name
-            self.device.create_watchdog(name, float(request.timeout), {})
+            name, new = self._session(name, request.initialization_behavior)
+            if new:
+                self.device.create_watchdog(name, float(request.timeout), {})
             return pb.CreateWatchdogTimerTaskExResponse(task=Session(name=name),
-                                                        new_session_initialized=True)
+                                                        new_session_initialized=new)
 
     @_rpc
     def CfgWatchdogAOExpirStates(self, request: Any, context: Any) -> Any:  # noqa: N802
