@@ -1,10 +1,12 @@
 """
-Sustained rate, CPU and latency of the daq_bridge node on the udp back-end.
+Sustained rate, CPU and latency of the daq_bridge node on the udp and daqmx back-ends.
 
-Three processes per run: the device emulator (``emfc-device-emulator``, its own process,
-four input channels, paced by its real-time sample clock), the daq_bridge node (its own
-process, ``backend: udp``, only the ``measurements`` stream, no joint states) and this
-benchmark, which subscribes to ``measurements`` and checks every block's sample index. The
+Three processes per run: the device (``emfc-device-emulator`` for udp, four input channels,
+or ``emfc-daqmx-emulator`` for daqmx, NI's gRPC service on loopback; each its own process,
+paced by its real-time sample clock), the daq_bridge node (its own process, ``backend: udp``
+or ``daqmx``, only the ``measurements`` stream, no joint states) and this benchmark, which
+subscribes to ``measurements`` and checks every block's sample index. The daqmx runs stream
+2 AO and read 4 AI on one clock (the back-end always writes its outputs). The
 bridge's publisher and this subscriber keep ``--depth`` blocks (1000: a second at 1000
 blocks/s), so that the burst after a stall of the shared machine does not overrun them.
 
@@ -28,11 +30,15 @@ the achieved rate is within 1 % of the nominal one and the last block was less t
 (the bridge did not fall behind). The sweep runs the target (300 kS/s,
 the paper's rate) first, then upward until a rate is not sustained.
 
-Baseline in the same run: the ``UdpBackend`` read directly in this process, no ROS (same
-emulator set-up): the rate and the age at ``read_block`` return without the ROS layer.
+Baseline in the same run: the back-end read directly in this process, no ROS (same
+emulator set-up): the rate and the age at ``read_block`` return without the ROS layer. For
+daqmx the baseline also streams setpoint blocks and measures the end-to-end latency from
+writing an excitation block (at the earliest sample the back-end still accepts) to the return
+of the measurement block that holds its first sample (``excitation->measurement``).
 
     python bench/bench_daq_bridge.py --seconds 60
     python bench/bench_daq_bridge.py --seconds 10 --rates 300000,600000,1000000
+    python bench/bench_daq_bridge.py --seconds 10 --backends daqmx --rates 10000,100000,300000
 """
 
 from __future__ import annotations
@@ -67,11 +73,15 @@ def _env() -> dict:
                 PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get('PYTHONPATH', '')]))
 
 
-def start_emulator() -> tuple:
-    """Start ``emfc-device-emulator --port 0`` and read the port it prints."""
-    proc = subprocess.Popen([sys.executable, '-m', 'emfc_ros.cli.device_emulator', '--port',
-                             '0', '--channels', str(len(INPUTS)), '--seed', '0'],
-                            stdout=subprocess.PIPE, env=_env(), cwd=REPO)
+def start_emulator(kind: str = 'udp') -> tuple:
+    """Start ``emfc-device-emulator --port 0`` (or ``emfc-daqmx-emulator``); read the port."""
+    if kind == 'daqmx':
+        args = [sys.executable, '-m', 'emfc_ros.cli.daqmx_emulator', '--listen',
+                '127.0.0.1:0', '--seed', '0']
+    else:
+        args = [sys.executable, '-m', 'emfc_ros.cli.device_emulator', '--port', '0',
+                '--channels', str(len(INPUTS)), '--seed', '0']
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, env=_env(), cwd=REPO)
     line = proc.stdout.readline().decode().strip()
     if not line.isdigit():
         stop(proc)
@@ -99,11 +109,16 @@ def percentiles_us(values_ns: List[int]) -> Dict[str, float]:
             'p99_us': round(float(np.percentile(arr, 99)), 1)}
 
 
-def baseline(rate: float, block: int, seconds: float) -> dict:
-    """The udp back-end read directly, no ROS: rate, gaps and sample age at read return."""
+def baseline(rate: float, block: int, seconds: float, kind: str = 'udp') -> dict:
+    """The back-end read directly, no ROS: rate, gaps and sample age at read return."""
     from emfc_ros.core.device import create_backend, default_device_config
-    emulator, port = start_emulator()
-    backend = create_backend('udp', device_address=('127.0.0.1', port))
+    emulator, port = start_emulator(kind)
+    if kind == 'daqmx':
+        backend = create_backend('daqmx', grpc_address=f'127.0.0.1:{port}')
+    else:
+        backend = create_backend('udp', device_address=('127.0.0.1', port))
+    written: Dict[int, int] = {}        # first sample of an excitation block -> write time
+    latencies: List[int] = []
     try:
         backend.configure(default_device_config(rate, block, INPUTS))
         backend.start()
@@ -113,6 +128,7 @@ def baseline(rate: float, block: int, seconds: float) -> dict:
         expected = None
         holes = 0
         first_t = None
+        next_write = None
         cpu0 = time.process_time()
         while True:
             got = backend.read_block(timeout_s=1.0)
@@ -129,6 +145,15 @@ def baseline(rate: float, block: int, seconds: float) -> dict:
                 holes += 1
             expected = got.end_index
             samples += got.n_samples
+            if kind == 'daqmx':
+                for k in [k for k in written if got.first_sample_index <= k < got.end_index]:
+                    latencies.append(now - written.pop(k))
+                # the next excitation block at the earliest sample still accepted
+                horizon = backend._ao_end + block
+                start = horizon if next_write is None else max(next_write, horizon)
+                written[start] = time.monotonic_ns()
+                backend.write_setpoints(start, np.zeros((2, block)))
+                next_write = start + block
         elapsed = (time.monotonic_ns() - first_t) * 1e-9 if first_t else 0.0
         cpu = time.process_time() - cpu0
         health = backend.health()
@@ -136,15 +161,22 @@ def baseline(rate: float, block: int, seconds: float) -> dict:
         backend.close()
         stop(emulator)
     achieved = samples / elapsed if elapsed else 0.0
-    ok = holes == 0 and health['gaps'] == 0 and achieved >= 0.99 * rate
-    return {'path': 'udp back-end, no ROS (baseline)', 'rate_Hz': rate, 'seconds': elapsed,
-            'samples': samples, 'achieved_rate_Hz': round(achieved, 1), 'gaps': holes,
-            'backend_gaps': health['gaps'], 'sustained': ok,
-            'cpu_percent': round(100.0 * cpu / elapsed, 1) if elapsed else float('nan'),
-            'age_at_read': percentiles_us(ages)}
+    faults = backend.take_faults() if kind == 'daqmx' else []
+    ok = holes == 0 and health['gaps'] == 0 and achieved >= 0.99 * rate and not faults
+    out = {'path': f'{kind} back-end, no ROS (baseline)', 'backend': kind, 'rate_Hz': rate,
+           'seconds': elapsed, 'samples': samples, 'achieved_rate_Hz': round(achieved, 1),
+           'gaps': holes, 'backend_gaps': health['gaps'], 'sustained': ok,
+           'cpu_percent': round(100.0 * cpu / elapsed, 1) if elapsed else float('nan'),
+           'age_at_read': percentiles_us(ages)}
+    if kind == 'daqmx':
+        out.update({'excitation_to_measurement': percentiles_us(latencies),
+                    'faults': [f[2] for f in faults],
+                    'daqmx_errors': health.get('daqmx_errors', 0)})
+    return out
 
 
-def through_bridge(rate: float, block: int, seconds: float, depth: int) -> dict:
+def through_bridge(rate: float, block: int, seconds: float, depth: int,
+                   kind: str = 'udp') -> dict:
     """Emulator -> bridge process -> this process, over DDS."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
@@ -154,10 +186,12 @@ def through_bridge(rate: float, block: int, seconds: float, depth: int) -> dict:
 
     from emfc_ros.nodes.convert import BLOCK_QOS, LATCHED_QOS, msg_to_description
 
-    emulator, port = start_emulator()
+    emulator, port = start_emulator(kind)
     ns = f'/bench{os.getpid()}'
+    device = ['-p', 'backend:=udp', '-p', f'udp.device_port:={port}'] if kind == 'udp' else \
+        ['-p', 'backend:=daqmx', '-p', f'daqmx.grpc_address:=127.0.0.1:{port}']
     args = [sys.executable, '-m', 'emfc_ros.nodes.daq_bridge', '--ros-args', '-r',
-            f'__ns:={ns}', '-p', 'backend:=udp', '-p', f'udp.device_port:={port}',
+            f'__ns:={ns}', *device,
             '-p', f'sample_rate_Hz:={rate}', '-p', f'block_size:={block}',
             '-p', f'inputs:=[{",".join(INPUTS)}]', '-p', 'publish_groups:=false',
             '-p', 'state_rate_Hz:=0.0', '-p', 'diagnostics_period_s:=1.0',
@@ -192,7 +226,8 @@ def through_bridge(rate: float, block: int, seconds: float, depth: int) -> dict:
     node.create_subscription(String, 'measurements/description', on_description, LATCHED_QOS)
     node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
     bridge = subprocess.Popen(args, env=_env(), cwd=REPO)
-    result: dict = {'path': 'emulator -> daq_bridge -> subscriber (DDS)', 'rate_Hz': rate}
+    result: dict = {'path': f'{kind}: emulator -> daq_bridge -> subscriber (DDS)',
+                    'backend': kind, 'rate_Hz': rate}
     window: list = []
     try:
         deadline = time.monotonic() + 30.0
@@ -236,7 +271,7 @@ def through_bridge(rate: float, block: int, seconds: float, depth: int) -> dict:
     final_age_ms = ages[-1] / 1e6 if ages else float('nan')
     ok = bool(blocks) and holes == 0 and epochs == 1 and backend_gaps == 0 and \
         int(diag.get('blocks_overflowed', 0)) == 0 and achieved >= 0.99 * rate and \
-        final_age_ms < 500.0
+        final_age_ms < 500.0 and int(diag.get('faults', 0) or 0) == 0
     result.update({
         'seconds': round(elapsed, 2), 'samples': samples, 'blocks': len(blocks),
         'achieved_rate_Hz': round(achieved, 1), 'gaps': holes, 'epochs': epochs,
@@ -251,7 +286,8 @@ def through_bridge(rate: float, block: int, seconds: float, depth: int) -> dict:
         'age_at_subscriber': percentiles_us(ages), 'final_age_ms': round(final_age_ms, 2),
         'bridge_diagnostics': {k: diag.get(k) for k in (
             'frames_received', 'corrupt', 'duplicates', 'reordered', 'late',
-            'heartbeat_misses', 'reconnects', 'published_blocks', 'latency_blocks')}})
+            'heartbeat_misses', 'reconnects', 'published_blocks', 'latency_blocks',
+            'faults', 'daqmx_errors')}})
     return result
 
 
@@ -274,26 +310,28 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument('--depth', type=int, default=1000,
                         help='history depth of the bridge publisher and of this subscriber '
                              '[blocks] (the bridge default is 100)')
+    parser.add_argument('--backends', default='udp,daqmx',
+                        help='back-ends to sweep, in order (default udp,daqmx)')
     parser.add_argument('--json', default=str(REPO / 'bench' / 'results' / 'daq_bridge.json'))
     args = parser.parse_args(argv)
     rates = [float(r) for r in args.rates.split(',') if r]
     runs = []
-    best = {'bridge': 0.0, 'baseline': 0.0}
-    for rate in rates:
-        base = baseline(rate, args.block_size, args.seconds)
-        runs.append(base)
-        print(json.dumps(base), flush=True)
-        ros = through_bridge(rate, args.block_size, args.seconds, args.depth)
-        runs.append(ros)
-        print(json.dumps(ros), flush=True)
-        if base['sustained']:
-            best['baseline'] = max(best['baseline'], rate)
-        if ros['sustained']:
-            best['bridge'] = max(best['bridge'], rate)
-        if not ros['sustained'] and not base['sustained']:
-            break
-        if not ros['sustained']:
-            break
+    best = {}
+    for kind in [k for k in args.backends.split(',') if k]:
+        best[kind] = {'bridge': 0.0, 'baseline': 0.0}
+        for rate in rates:
+            base = baseline(rate, args.block_size, args.seconds, kind)
+            runs.append(base)
+            print(json.dumps(base), flush=True)
+            ros = through_bridge(rate, args.block_size, args.seconds, args.depth, kind)
+            runs.append(ros)
+            print(json.dumps(ros), flush=True)
+            if base['sustained']:
+                best[kind]['baseline'] = max(best[kind]['baseline'], rate)
+            if ros['sustained']:
+                best[kind]['bridge'] = max(best[kind]['bridge'], rate)
+            if not ros['sustained']:
+                break
     header = (f'{"path":44} {"rate kS/s":>9} {"got kS/s":>9} {"gaps":>4} {"ok":>3} '
               f'{"CPU %":>6} {"arr->pub us":>12} {"age@pub us":>11} {"age@sub us":>11}')
     print()
@@ -307,9 +345,14 @@ def main(argv: Optional[List[str]] = None) -> int:
               f'{r["gaps"] + max(0, r["backend_gaps"]):4d} {"yes" if r["sustained"] else "no":>3} '
               f'{cpu:6.1f} {_fmt(r, "arrival_to_publish"):>12} {age_pub:>11} '
               f'{_fmt(r, "age_at_subscriber"):>11}')
-    print(f'\nhighest sustained rate: bridge {best["bridge"] / 1e3:.0f} kS/s, baseline '
-          f'{best["baseline"] / 1e3:.0f} kS/s ({len(INPUTS)} channels, blocks of '
-          f'{args.block_size}, {args.seconds:.0f} s per rate); latencies are median/p99')
+    for kind, b in best.items():
+        print(f'\n{kind}: highest sustained rate: bridge {b["bridge"] / 1e3:.0f} kS/s, '
+              f'baseline {b["baseline"] / 1e3:.0f} kS/s ({len(INPUTS)} channels, blocks of '
+              f'{args.block_size}, {args.seconds:.0f} s per rate); latencies are median/p99')
+    for r in runs:
+        if 'excitation_to_measurement' in r:
+            print(f'{r["path"]} at {r["rate_Hz"] / 1e3:.0f} kS/s: excitation->measurement '
+                  f'{_fmt(r, "excitation_to_measurement")} us')
     out = Path(args.json)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({'channels': INPUTS, 'block_size': args.block_size,

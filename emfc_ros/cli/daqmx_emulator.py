@@ -24,12 +24,14 @@ Exit codes: 0 stopped, 1 the device failed, 2 usage or configuration error.
 from __future__ import annotations
 
 import argparse
+import gc
 import signal
 import sys
 import threading
 import time
-from typing import Any, List, Optional, Tuple
+from typing import List, Optional, Tuple
 
+from emfc_ros.cli.device_emulator import load_mass_kg_argument
 from emfc_ros.core.device.daqmx_wiring import DEFAULT_DEVICE
 from emfc_ros.core.device.emulator import check_bind_host
 from emfc_ros.core.model.balance_file import load_balance
@@ -92,20 +94,6 @@ def parse_listen(text: str, allow_remote: bool = False) -> Tuple[str, int]:
     return host, int(port)
 
 
-def _load_mass_kg(text: str, params: Any, coupled: bool) -> float:
-    if text.strip() == 'balance':
-        from emfc_ros.core.sim.balancing import balancing_load_mass_kg
-        return balancing_load_mass_kg(params, coupled)
-    try:
-        value = float(text)
-    except ValueError:
-        raise ValueError(f"--load-mass-kg must be a mass in kg or 'balance', got {text!r}") \
-            from None
-    if not 0.0 <= value <= 100.0:
-        raise ValueError(f'--load-mass-kg must be in [0, 100] kg, got {value}')
-    return value
-
-
 def main(argv: Optional[List[str]] = None) -> int:
     """
     Run the emulated device until a signal or ``--duration-s``.
@@ -130,8 +118,8 @@ def main(argv: Optional[List[str]] = None) -> int:
         from emfc_ros.core.device.daqmx_emulator.plant import BalancePlant
         from emfc_ros.core.device.daqmx_emulator.server import DaqmxServicer, serve
         params = load_balance(args.config)
-        options = {'load_mass_kg': _load_mass_kg(args.load_mass_kg, params,
-                                                 args.load_changer_coupled),
+        options = {'load_mass_kg': load_mass_kg_argument(args.load_mass_kg, params,
+                                                         args.load_changer_coupled),
                    'load_changer_coupled': bool(args.load_changer_coupled),
                    'noise': not args.no_noise}
         plant = BalancePlant(params, args.seed, simulator_options=options)
@@ -139,6 +127,9 @@ def main(argv: Optional[List[str]] = None) -> int:
         servicer = DaqmxServicer(device)
         address = f'[{host}]:{port}' if ':' in host else f'{host}:{port}'
         server, bound = serve(servicer, address)
+        # what exists now lives as long as the process: out of the collector's way, so that
+        # a full collection does not stall the sample clock's thread for tens of ms
+        gc.freeze()
     except ImportError as exc:
         print(f'{PROG}: error: the NI-DAQmx client is not installed ({exc}); install the '
               "extra: pip install 'emfc_ros[daqmx]'", file=sys.stderr)

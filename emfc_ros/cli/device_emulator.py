@@ -92,8 +92,30 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _load_mass_kg(text: str, params: Any, coupled: bool) -> float:
-    """The ``--load-mass-kg`` value [kg]: a number from 0 to 100, or ``balance``."""
+def load_mass_kg_argument(text: str, params: Any, coupled: bool) -> float:
+    """
+    The ``--load-mass-kg`` value of an emulator [kg].
+
+    Parameters
+    ----------
+    text : str
+        A number from 0 to 100, or ``balance`` (the mass that holds the lever at 0 with 0 V
+        on the coil).
+    params : BalanceParameters
+        The balance.
+    coupled : bool
+        Whether the load changer's moving mass rides on the pan.
+
+    Returns
+    -------
+    float
+        The mass [kg].
+
+    Raises
+    ------
+    ValueError
+        Naming the option and what is allowed.
+    """
     if text.strip() == 'balance':
         from emfc_ros.core.sim.balancing import balancing_load_mass_kg
         return balancing_load_mass_kg(params, coupled)
@@ -134,8 +156,8 @@ def main(argv: Optional[List[str]] = None) -> int:
             raise ValueError(f'--port must be in [0, 65535], got {args.port}')
         faults = Faults.parse(args.faults)
         params = load_balance(args.config)
-        options = {'load_mass_kg': _load_mass_kg(args.load_mass_kg, params,
-                                                 args.load_changer_coupled),
+        options = {'load_mass_kg': load_mass_kg_argument(args.load_mass_kg, params,
+                                                         args.load_changer_coupled),
                    'load_changer_coupled': bool(args.load_changer_coupled),
                    'noise': not args.no_noise}
         if args.load:

@@ -505,7 +505,8 @@ def record(plan: RunPlan, out: Path, phases: Phases, ctrl_c: Optional[CtrlC] = N
             if plan.bridge.start_emulator:
                 emulator = _start_emulator(plan, params, load_kg, coupled, balance_path)
                 address = emulator.address
-                _progress(f'  {emulator.what} on {address[0]}:{address[1]}')
+                what, detail = _emulator_label(plan)
+                _progress(f'  {what} on {address[0]}:{address[1]}{detail}')
             values = bridge_parameters(plan, balance_path, load_kg, address)
             doc = _plan_document(plan, load_kg, executor_kind)
             doc['run']['bridge']['parameters'] = values     # as given to the node
@@ -832,8 +833,6 @@ def _start_emulator(plan: RunPlan, params: Any, load_kg: float, coupled: bool,
                                       'noise': emu.noise, 'quantisation': emu.quantisation},
                                   key=load_key_file(key_file) if key_file else None)
         emulator.start()
-        emulator.what = (f'device emulator (in this process), {emu.channels} analog '
-                         'inputs,')
     except KeyFileError as exc:
         raise RuntimeError(f'cannot start the device emulator: {exc}') from None
     except OSError as exc:
@@ -842,11 +841,23 @@ def _start_emulator(plan: RunPlan, params: Any, load_kg: float, coupled: bool,
     return emulator
 
 
+def _emulator_label(plan: RunPlan) -> Tuple[str, str]:
+    """What the runner's emulator is, and what to say after its address."""
+    if plan.bridge.backend == 'daqmx':
+        from emfc_ros.cli.daqmx_process import DaqmxEmulatorProcess
+        return DaqmxEmulatorProcess.what, ''
+    return 'device emulator (in this process)', \
+        f', {plan.bridge.emulator.channels} analog inputs'
+
+
 def _device_summary(plan: RunPlan, emulator: Any) -> str:
     bridge = plan.bridge
+    if emulator is not None and bridge.backend == 'daqmx':
+        return (f'daq_bridge, daqmx back-end, {_emulator_label(plan)[0]} started by the '
+                f'runner on {emulator.host}:{emulator.port}')
     if emulator is not None:
-        return (f'daq_bridge, {bridge.backend} back-end, {emulator.what.rstrip(",")} '
-                f'started by the runner on {emulator.host}:{emulator.port}')
+        return (f'daq_bridge, udp back-end, device emulator started by the runner on '
+                f'{emulator.host}:{emulator.port}')
     if bridge.backend == 'daqmx':
         where = bridge.parameters.get('daqmx.grpc_address') or 'the local NI-DAQmx driver'
         return (f'daq_bridge, daqmx back-end, device '

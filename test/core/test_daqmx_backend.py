@@ -66,6 +66,9 @@ def _config(**kwargs):
 
 
 def _started(address, config=None, **options):
+    # an output lead of 0.2 s (the default 0.5 s is for a busy ROS host): the tests write
+    # their setpoints from sample 3000 on, right after the start
+    options.setdefault('output_lead_s', 0.2)
     backend = DaqmxBackend(grpc_address=address, **options)
     backend.configure(config or _config())
     backend.start()
@@ -237,15 +240,15 @@ def test_a_dead_host_leaves_the_outputs_safe_by_the_hardware_watchdog(emulator):
         b.configure(default_device_config({RATE}, {BLOCK}, safe_V={SAFE!r},
                                           watchdog_timeout_s=0.3))
         b.start()
-        b.write_setpoints(0, np.full((2, {10 * BLOCK}), 3.0))
+        b.write_setpoints(0, np.full((2, {20 * BLOCK}), 3.0))
         end = time.monotonic() + 60
         while time.monotonic() < end:
             block = b.read_block(0.05)
             if block is None:
                 continue
-            b.write_setpoints(block.first_sample_index + {10 * BLOCK},
+            b.write_setpoints(block.first_sample_index + {20 * BLOCK},
                               np.full((2, {BLOCK}), 3.0))     # as the bridge streams
-            if block.first_sample_index >= {2 * BLOCK}:
+            if block.first_sample_index >= {7 * BLOCK}:
                 print(block.samples[3, -1], flush=True)     # coil_setpoint_V: ao0 looped
     """)
     proc = subprocess.Popen([sys.executable, '-c', host], stdout=subprocess.PIPE, text=True,

@@ -73,6 +73,26 @@ def test_underruns_grow_one_fault_and_silence_or_reconnects_mean_a_lost_device()
         assert ('session' in fault.message) == (key == 'sessions_lost')
 
 
+def test_a_driver_fault_widens_the_same_kind_and_keeps_the_driver_s_text():
+    monitor = FaultMonitor()
+    monitor.reset({}, epoch=1)
+    first = monitor.observe({'device_underrun_samples': 2222}, 12013, 11000, 1.0)
+    assert [f.kind for f in first] == ['device_underrun'] and first[0].samples == 2222
+    text = 'writing the outputs: NI-DAQmx error -200290: The generation has stopped'
+    assert monitor.add_reported('device_underrun', 9798, text, True) is None
+    (fault,) = monitor.faults
+    assert (fault.device_index, fault.samples, fault.exact) == (9798, None, True)
+    assert text in fault.message and '2222 samples' in fault.message
+    assert monitor.take_grown()
+    # to the end of the epoch: more host-side underruns do not shrink it or drop the text
+    monitor.observe({'device_underrun_samples': 5000}, 15000, 14000, 1.0)
+    assert monitor.faults == (fault,)
+    assert monitor.add_reported('device_underrun', 9798, text, True) is None   # said once
+    lost = monitor.add_reported('device_lost', 20000, 'reading the inputs: NI-DAQmx error '
+                                '-200045: The device has been removed from the system.')
+    assert lost is not None and lost.samples is None and len(monitor.faults) == 2
+
+
 def test_setpoint_gaps_and_refused_frames_are_faults_at_the_devices_record():
     monitor = FaultMonitor()
     monitor.reset({'device_gap_filled_samples': 7, 'device_setpoint_frames_rejected': 1},

@@ -21,8 +21,9 @@ REPO = Path(__file__).resolve().parents[2]
 ROSDEP_KEYS = {'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'yaml': 'python3-yaml',
                'numba': 'python3-numba'}
 #: Not from rosdep: the README's `pip install rosbags mcap threadpoolctl`, and the optional
-#: extra.
-PIP_ONLY = {'rosbags', 'mcap', 'threadpoolctl', 'matplotlib'}
+#: extras plot and daqmx (NI's nidaqmx client, its grpc, and the session_pb2 module its
+#: gRPC stubs import).
+PIP_ONLY = {'rosbags', 'mcap', 'threadpoolctl', 'matplotlib', 'nidaqmx', 'grpc', 'session_pb2'}
 
 
 def imported_top_level(root: Path) -> set:
@@ -48,8 +49,9 @@ def test_every_import_is_an_exec_depend_or_a_documented_pip_install():
     readme = (REPO / 'README.md').read_text()
     assert 'pip install rosbags mcap threadpoolctl' in readme
     setup_py = (REPO / 'setup.py').read_text()
-    for extra, lib in (('fast', 'numba'), ('plot', 'matplotlib')):
+    for extra, lib in (('fast', 'numba'), ('plot', 'matplotlib'), ('daqmx', 'nidaqmx')):
         assert f"'{extra}': ['{lib}" in setup_py
+    assert "'.[daqmx]'" in readme
 
 
 def _install_requires() -> list:

@@ -107,10 +107,15 @@ class _Child:
 
 
 def _emulator(tmp_path, *extra):
-    child = _Child(['emfc_ros.cli.device_emulator', '--channels', '6', '--seed', '3', *extra],
-                   tmp_path)
+    yield from device_process(tmp_path, ['emfc_ros.cli.device_emulator', '--channels', '6',
+                                         '--seed', '3', *extra])
+
+
+def device_process(tmp_path, args):
+    """A device emulator's module and arguments as a child; its port on ``.port``."""
+    child = _Child(args, tmp_path)
     try:
-        assert child.wait_line(lambda line: line.strip().isdigit(), 30.0), child.text()
+        assert child.wait_line(lambda line: line.strip().isdigit(), 60.0), child.text()
         child.port = int(next(line for line in child.out if line.strip().isdigit()))
         yield child
     finally:

@@ -167,11 +167,12 @@ class SafetyPath:
             return
         with self._lock:
             found, self._worker_faults = self._worker_faults, []
-        # the back-end's own findings (a driver error: its code and text), each kind once
-        found += [f for f in self.backend.take_faults() if not self.monitor.has(f[0])]
         if found:
             self._latch([self.monitor.add(kind, index, None, message, exact)
                          for kind, index, message, exact in found])
+        # the back-end's own findings (a driver error: its code and text), to the epoch's end
+        reported = [self.monitor.add_reported(*f) for f in self.backend.take_faults()]
+        self._latch([f for f in reported if f is not None])
         if self._safe_failed:
             message, self._safe_failed = self._safe_failed, ''
             self.last_error = message

@@ -123,7 +123,7 @@ class DaqmxBackend:
                  ai_terminal_config: str = 'DEFAULT',
                  ao_terminals: Sequence[str] = tuple(t for _, t in DEFAULT_AO_WIRING), *,
                  grpc_address: str = '', session_prefix: str = 'emfc',
-                 read_period_s: float = 0.01, output_lead_s: float = 0.2,
+                 read_period_s: float = 0.01, output_lead_s: float = 0.5,
                  input_buffer_s: float = 2.0, watchdog: str = 'auto',
                  clock: Callable[[], float] = time.monotonic) -> None:
         if ai_terminal_config not in TERMINAL_CONFIGS:

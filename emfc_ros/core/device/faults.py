@@ -332,6 +332,49 @@ class FaultMonitor:
         self._faults.append(fault)
         return fault
 
+    def add_reported(self, kind: str, device_index: Optional[int], message: str,
+                     exact: bool = False) -> Optional[Fault]:
+        """
+        Latch a fault the back-end found itself (a driver error), to the end of the epoch.
+
+        A fault of the same kind latched already (from the health counters) is widened
+        instead: from the exact record of the two (else the earlier estimate) to the end of
+        the epoch, with both messages, so that the driver's own code and text are never lost.
+
+        Parameters
+        ----------
+        kind : str
+            One of :data:`KINDS`.
+        device_index : int or None
+            First device sample affected.
+        message : str
+            What the back-end said.
+        exact : bool
+            Whether the index is the device's or the back-end's exact record.
+
+        Returns
+        -------
+        Fault or None
+            The new fault; None when an existing one was widened (or already said it).
+        """
+        old = next((f for f in self._faults if f.kind == kind), None)
+        if old is None:
+            return self.add(kind, device_index, None, message, exact)
+        if message in old.message:
+            return None
+        # the exact record where there is one, else the earlier estimate
+        if exact and device_index is not None:
+            index, is_exact = device_index, True
+        elif old.exact or device_index is None:
+            index, is_exact = old.device_index, old.exact
+        else:
+            known = [i for i in (old.device_index, device_index) if i is not None]
+            index, is_exact = min(known), False
+        widened = Fault(kind, index, None, f'{old.message}; {message}', is_exact, old.epoch)
+        self._faults[self._faults.index(old)] = widened
+        self._grown = True
+        return None
+
     def observe(self, health: Mapping[str, Any], device_index_now: int,
                 received_end: int, device_timeout_s: float) -> List[Fault]:
         """
@@ -370,7 +413,8 @@ class FaultMonitor:
             self._base.get('device_underrun_samples', 0)
         if under > 0:
             old = next((f for f in self._faults if f.kind == 'device_underrun'), None)
-            if old is None or (old.samples or 0) < under:
+            # (a fault to the end of the epoch, samples None, has nothing left to grow)
+            if old is None or (old.samples is not None and old.samples < under):
                 fault = Fault('device_underrun', max(0, device_index_now - under), under,
                               f'the device ran out of setpoints for {under} samples (the host '
                               'wrote them too late): output at the safe values', False,

@@ -290,7 +290,7 @@ BACKENDS: Dict[str, BackendEntry] = {entry.name: entry for entry in (
         Option('read_period_s', 0.01, 'daqmx: inputs are read and outputs topped up in '
                                       'chunks of this length [s], (0, 1]', minimum=0.0,
                maximum=1.0, min_exclusive=True),
-        Option('output_lead_s', 0.2, 'daqmx: outputs are written this far ahead of the '
+        Option('output_lead_s', 0.5, 'daqmx: outputs are written this far ahead of the '
                                      "device's position [s] (at least 2 read periods; the "
                                      "bridge's excitation_lead_s must exceed it by a "
                                      'block, a read and 50 ms), (0, 10]', minimum=0.0,
