@@ -271,7 +271,7 @@ def through_bridge(rate: float, block: int, seconds: float, depth: int,
     final_age_ms = ages[-1] / 1e6 if ages else float('nan')
     ok = bool(blocks) and holes == 0 and epochs == 1 and backend_gaps == 0 and \
         int(diag.get('blocks_overflowed', 0)) == 0 and achieved >= 0.99 * rate and \
-        final_age_ms < 500.0 and int(diag.get('faults', 0) or 0) == 0
+        final_age_ms < 500.0 and str(diag.get('faults', 'none')) in ('none', '0', '')
     result.update({
         'seconds': round(elapsed, 2), 'samples': samples, 'blocks': len(blocks),
         'achieved_rate_Hz': round(achieved, 1), 'gaps': holes, 'epochs': epochs,

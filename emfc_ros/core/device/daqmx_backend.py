@@ -50,6 +50,8 @@ from emfc_ros.core.excitation_queue import ExcitationQueue, fill_outputs
 #: NI-DAQmx terminal configurations by the name the option takes.
 TERMINAL_CONFIGS = ('DEFAULT', 'RSE', 'NRSE', 'DIFF', 'PSEUDO_DIFF')
 WATCHDOG_MODES = ('auto', 'on', 'off')
+#: Most values one read returns (all channels): 1.6 MB of float64 in one gRPC message.
+MAX_READ_VALUES = 200_000
 #: A fault the back-end reports: kind, first device sample, message, whether exact.
 ReportedFault = Tuple[str, Optional[int], str, bool]
 
@@ -416,7 +418,9 @@ class DaqmxBackend:
             self._parts, self._part_samples = [], 0
             with self._ready_cv:
                 self._ready.clear()
-            self._max_read = max(int(self.input_buffer_s * cfg.sample_rate_Hz) // 2,
+            # a catch-up read stays well inside gRPC's 4 MB message limit (and the buffer)
+            self._max_read = max(min(int(self.input_buffer_s * cfg.sample_rate_Hz) // 2,
+                                     MAX_READ_VALUES // len(cfg.inputs)),
                                  self._chunk_samples(cfg.sample_rate_Hz))
             self._feed_period_s = min(0.05, cfg.watchdog_timeout_s / 5.0)
             self._ao_failed = self._ai_failed = False
