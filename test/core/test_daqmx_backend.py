@@ -152,13 +152,15 @@ def test_stop_drives_the_outputs_to_their_safe_values(emulator):
 
 
 def test_a_host_stall_is_ni_s_underflow_a_fault_and_the_outputs_go_safe(emulator):
-    backend = _started(emulator.address)
+    # a hardware watchdog of 3 s: far longer than the stall plus what a loaded CI host adds
+    # before the I/O thread runs again (with 0.5 s it tripped too, once in CI)
+    backend = _started(emulator.address, _config(watchdog_timeout_s=3.0))
     try:
         backend.write_setpoints(0, np.full((2, 100000), 2.0))
         _blocks(backend, 2)
         with backend._io:               # the I/O thread stalls (as in a host stall) for
-            time.sleep(0.35)            # longer than output_lead_s (0.2 s), shorter than
-            #                             the hardware watchdog (0.5 s)
+            time.sleep(0.35)            # longer than output_lead_s (0.2 s), far shorter
+            #                             than the hardware watchdog (3 s)
         blocks = _blocks(backend, 10)
         faults = backend.take_faults()
         assert [f[0] for f in faults] == ['device_underrun']
