@@ -62,6 +62,39 @@ def test_counts_custom_data_and_a_proper_close(tmp_path):
     assert read_streams(tmp_path / 'b')['/s'].n_samples == 10000
 
 
+class GatedWriter(BagWriter):
+    """A bag writer whose message writes wait for the test (the writer thread mid-write)."""
+
+    def __init__(self, path):
+        super().__init__(path)
+        import threading
+        self.inside = threading.Event()
+        self.go_on = threading.Event()
+
+    def write(self, *args, **kwargs):
+        self.inside.set()
+        assert self.go_on.wait(scaled(10.0))
+        return super().write(*args, **kwargs)
+
+
+def test_a_message_being_written_is_still_queued_so_an_empty_queue_means_all_counted(tmp_path):
+    # The runner's accounting reads the counts once the queue is empty; a message the
+    # writer thread had taken but not yet counted made a bag hold one /diagnostics message
+    # more than its counts said (CI). It leaves the queue as it is counted.
+    writer = GatedWriter(tmp_path / 'b')
+    queued = QueuedBagWriter(writer, flush_period_s=10.0)
+    queued.start()
+    cid = queued.add_connection('/diagnostics', F64)
+    assert queued.put(cid, 1, block_cdr(0, 10))
+    assert writer.inside.wait(scaled(10.0))          # taken from the queue, being written
+    stats = queued.stats()
+    assert (stats.queue_depth, stats.messages) == (1, {'/diagnostics': 0})
+    writer.go_on.set()
+    assert wait_for(lambda: queued.stats().queue_depth == 0)
+    assert queued.stats().messages == {'/diagnostics': 1}
+    assert queued.stop().messages == {'/diagnostics': 1}
+
+
 def test_queue_bounds_drop_and_count_instead_of_growing(tmp_path):
     queued = QueuedBagWriter(BagWriter(tmp_path / 'b'), max_queue_messages=10,
                              max_queue_B=len(block_cdr(0, 100)) + 10)

@@ -38,7 +38,8 @@ class RecorderStats:
     bytes : dict
         Serialized bytes written per topic [B].
     queue_depth : int
-        Messages waiting in the queue.
+        Messages taken and not yet written (one leaves the queue as it is counted written,
+        so a snapshot with an empty queue has every taken message in ``messages``).
     queue_high_water : int
         Largest queue depth seen.
     dropped : int
@@ -285,36 +286,45 @@ class QueuedBagWriter:
                 kind, cid, payload = self._queue.get(timeout=timeout)
             except queue.Empty:
                 kind = None
-            if kind == _WRITE:
-                with self._lock:
-                    self._queued_messages -= 1
-                    self._queued_bytes -= len(payload[1])
             if kind == _CLOSE:
                 self._close()
                 return
             if self._state == 'error':
                 if kind == _WRITE:
-                    with self._lock:
-                        self._dropped += 1
+                    self._unqueue(payload[1], dropped=True)
                 continue
             try:
                 self._handle(kind, cid, payload, ids)
+            except Exception as exc:  # write errors, and anything else: never die silently
+                if kind == _WRITE:
+                    self._unqueue(payload[1], dropped=True)
+                self._fail(exc)
+                continue
+            try:
                 if self._monotonic() >= next_flush:
                     self.writer.flush()
                     self._flushes += 1
                     next_flush = self._monotonic() + self.flush_period_s
-            except Exception as exc:  # write errors, and anything else: never die silently
-                if kind == _WRITE:
-                    with self._lock:
-                        self._dropped += 1
+            except Exception as exc:
                 self._fail(exc)
+
+    def _unqueue(self, data: bytes, dropped: bool) -> None:
+        """A message leaves the queue without being written (counted as dropped)."""
+        with self._lock:
+            self._queued_messages -= 1
+            self._queued_bytes -= len(data)
+            self._dropped += int(dropped)
 
     def _handle(self, kind, cid: int, payload, ids: Dict[int, int]) -> None:
         if kind == _WRITE:
             timestamp_ns, data = payload
             self.writer.write(ids[cid], timestamp_ns, data)
             topic = self._topics[cid]
+            # A message leaves the queue and counts as written at one instant: a snapshot
+            # with an empty queue has every taken message in its counts (stats()).
             with self._lock:
+                self._queued_messages -= 1
+                self._queued_bytes -= len(data)
                 self._messages[topic] += 1
                 self._bytes[topic] += len(data)
                 if len(self.writer.files) != len(self._files):
