@@ -51,7 +51,7 @@ def common_arguments() -> List[DeclareLaunchArgument]:
             'discovery_range', default_value='LOCALHOST', choices=DISCOVERY_RANGES,
             description='ROS_AUTOMATIC_DISCOVERY_RANGE of the nodes: LOCALHOST keeps '
                         'discovery on this computer (ROS_STATIC_PEERS in the environment '
-                        'adds named computers: README, Two computers); SUBNET multicasts '
+                        'adds named computers: docs/two_computers.md); SUBNET multicasts '
                         'it on every network this computer is on'),
     ]
 

@@ -14,7 +14,7 @@ and a recorder of the excitation) subscriptions to ``excitation`` matched (``sta
 so that the recording, started before or after the launch, has the experiment from its first
 sample and the device applies it from sample 0. Record with
 ``ros2 bag record -s mcap /emfc/excitation /emfc/excitation/description /emfc/measurements
-/emfc/measurements/description /diagnostics`` or the README's recorder line with the same
+/emfc/measurements/description /diagnostics`` or the recorder line of docs/nodes.md with the same
 topics; give the pan load (``load_mass_kg``, ``load_changer_coupled``) so that
 ``emfc-identify BAG`` finds it in the bag.
 
@@ -23,8 +23,9 @@ ros2 launch emfc_ros hardware_experiment.launch.py load_mass_kg:=0.1274 load_cha
 
 Every launch file takes ``namespace:=`` (default ``emfc``) and ``discovery_range:=`` (the
 nodes' ``ROS_AUTOMATIC_DISCOVERY_RANGE``; default ``LOCALHOST``, discovery on this computer
-only); ``ROS_STATIC_PEERS`` set in the shell reaches the nodes as it is (README, Two
-computers). An argument the file does not declare is an error (``--show-args`` lists them).
+only); ``ROS_STATIC_PEERS`` set in the shell reaches the nodes as it is
+(docs/two_computers.md). An argument the file does not declare is an error (``--show-args``
+lists them).
 """
 
 from launch import LaunchDescription

@@ -14,8 +14,9 @@ says ``state: done`` (``replay.loop:=true`` starts over instead).
 
 Every launch file takes ``namespace:=`` (default ``emfc``) and ``discovery_range:=`` (the
 nodes' ``ROS_AUTOMATIC_DISCOVERY_RANGE``; default ``LOCALHOST``, discovery on this computer
-only); ``ROS_STATIC_PEERS`` set in the shell reaches the nodes as it is (README, Two
-computers). An argument the file does not declare is an error (``--show-args`` lists them).
+only); ``ROS_STATIC_PEERS`` set in the shell reaches the nodes as it is
+(docs/two_computers.md). An argument the file does not declare is an error (``--show-args``
+lists them).
 """
 
 from launch import LaunchDescription

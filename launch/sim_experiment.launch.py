@@ -7,9 +7,9 @@ recorder, may come up in any order. The plant subscribes to the excitation once
 ``min_subscribers`` (default 1) subscriptions to ``measurements`` matched, and then
 announces itself ready on ``excitation/ready``. The generator holds sample 0 until the plant
 is ready and matched and ``excitation_subscribers`` (default 2: the plant and a recorder of
-the excitation) subscriptions to ``excitation`` matched (``start_gate``, README,
-signal_generator). Its status says what it waits for. Record with the README's recorder line
-(``use_sim_time:=true``, ``/clock`` among its topics) or
+the excitation) subscriptions to ``excitation`` matched (``start_gate``, docs/nodes.md,
+signal_generator). Its status says what it waits for. Record with the recorder line of
+docs/nodes.md (``use_sim_time:=true``, ``/clock`` among its topics) or
 ``ros2 bag record -s mcap --use-sim-time /emfc/excitation /emfc/excitation/description
 /emfc/measurements /emfc/measurements/description /clock``.
 
@@ -24,8 +24,9 @@ refuses to simulate and says so (``docs/simulator.md``, Two simulated balances).
 
 Every launch file takes ``namespace:=`` (default ``emfc``) and ``discovery_range:=`` (the
 nodes' ``ROS_AUTOMATIC_DISCOVERY_RANGE``; default ``LOCALHOST``, discovery on this computer
-only); ``ROS_STATIC_PEERS`` set in the shell reaches the nodes as it is (README, Two
-computers). An argument the file does not declare is an error (``--show-args`` lists them).
+only); ``ROS_STATIC_PEERS`` set in the shell reaches the nodes as it is
+(docs/two_computers.md). An argument the file does not declare is an error (``--show-args``
+lists them).
 """
 
 from launch import LaunchDescription

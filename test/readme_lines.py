@@ -1,5 +1,9 @@
 """
-The commands README.md shows, as a user types them, for the tests that run them.
+The commands the user docs show, as a user types them, for the tests that run them.
+
+The user docs are README.md and the guide pages its sections moved to (:data:`GUIDE_PAGES`:
+install, nodes and launch files, experiments, two computers, tests, messages, change notes),
+read as one text in that order.
 
 A command is every line of a fenced ``bash`` (or ``sh``) block, shell line continuations
 joined and comments dropped, and every inline code span whose first word is an ``emfc-*``
@@ -24,6 +28,9 @@ from ros_harness import scaled
 
 REPO = Path(__file__).resolve().parents[1]
 README = REPO / 'README.md'
+#: The pages whose commands are tests like the README's (README.md first).
+GUIDE_PAGES = (README,) + tuple(REPO / 'docs' / f'{name}.md' for name in (
+    'install', 'nodes', 'experiments', 'two_computers', 'testing', 'messages', 'changes'))
 FENCE = re.compile(r'^\s*(`{3,}|~{3,})\s*([\w+-]*)')
 SHELL_BLOCKS = ('bash', 'sh', 'shell', 'console')
 #: The console scripts of setup.py (an inline ``emfc-<name>`` is a command if it is one).
@@ -109,21 +116,33 @@ def inline_commands(text: str, scripts: Sequence[str] = SCRIPTS) -> List[Tuple[i
     return out
 
 
+def user_docs_text() -> str:
+    """
+    README.md and the guide pages as one Markdown text (:data:`GUIDE_PAGES`, in order).
+
+    Returns
+    -------
+    str
+        The pages joined by blank lines.
+    """
+    return '\n\n'.join(page.read_text() for page in GUIDE_PAGES)
+
+
 def readme_commands(text: Optional[str] = None) -> List[Tuple[int, str]]:
     """
-    Every command README.md shows, in order, each once.
+    Every command the user docs show, in order, each once.
 
     Parameters
     ----------
     text : str, optional
-        The README text (the repository's README.md when absent).
+        Markdown (README.md and the guide pages, :func:`user_docs_text`, when absent).
 
     Returns
     -------
     list of (int, str)
         Line number of the first occurrence and normalised command.
     """
-    text = README.read_text() if text is None else text
+    text = user_docs_text() if text is None else text
     seen, out = set(), []
     for number, command in sorted(fenced_commands(text) + inline_commands(text)):
         if command not in seen:
@@ -179,7 +198,7 @@ def readme_argv(prefix: str, *contains: str) -> List[str]:
     list of str
         The words, quotes removed, as from the shell.
     """
-    text = README.read_text()
+    text = user_docs_text()
     for _, raw in _raw_fenced(text):
         if normalise(raw) == readme_command(prefix, *contains):
             return shlex.split(raw.replace('\\\n', ' '), comments=True)

@@ -1,5 +1,7 @@
 """
-A README line is a test: every command README.md shows is run by a named test, or listed.
+A README line is a test: every command the user docs show is run by a named test, or listed.
+
+The user docs are README.md and its guide pages (``readme_lines.GUIDE_PAGES``).
 
 ``test/readme_lines.py`` extracts the commands (fenced shell blocks; inline ``emfc-*`` and
 ``tools/`` commands); ``test/readme_commands.yaml`` maps each, normalised, to the tests that
@@ -92,7 +94,7 @@ def test_every_readme_command_has_a_test_or_a_reason():
     lines = uncovered(commands, registry)
     assert lines == [], ('README commands without a test; add to test/readme_commands.yaml:\n'
                          + '\n'.join(lines))
-    assert stale(commands, registry) == [], 'registry entries no longer in README.md'
+    assert stale(commands, registry) == [], 'registry entries no longer in the user docs'
     assert missing_tests(registry) == []
 
 

@@ -63,8 +63,8 @@ from emfc_ros.nodes.convert import (
     BLOCK_QOS, BlockMessageBuilder, CONTROL_QOS, description_to_msg, LATCHED_QOS, msg_to_block,
     node_diagnostics, steady_clock, subscribe_device_inputs, subscribe_excitation)
 from emfc_ros.nodes.daq_bridge_parameters import (  # noqa: F401 (re-exported: --help, tests)
-    FUNCGEN_FIELDS, funcgen_key, funcgen_table, HELP_EXTRA, LIMITS, PARAMETERS, READ_ONLY,
-    RUNTIME, STARTUP_KEYS)
+    FUNCGEN_FIELDS, funcgen_key, funcgen_limits, funcgen_table, LIMITS, PARAMETER_GROUPS,
+    PARAMETERS, READ_ONLY, RUNTIME, STARTUP_KEYS)
 from emfc_ros.nodes.params import declare_table, refuse_unknown
 from emfc_ros.nodes.spin import node_main
 
@@ -86,8 +86,7 @@ class DaqBridgeNode(Node):
                          automatically_declare_parameters_from_overrides=True, **kwargs)
         refused = declare_table(self, PARAMETERS, LIMITS, READ_ONLY)
         funcgen = funcgen_table(self._param('outputs'))
-        refused += declare_table(self, funcgen, {
-            name: (2, 31) for name in funcgen if name.endswith('.prbs_order')})
+        refused += declare_table(self, funcgen, funcgen_limits(funcgen))
         refused += refuse_unknown(self, [*PARAMETERS, *funcgen])
         self.session: Optional[BridgeSession] = None
         self._error = ''

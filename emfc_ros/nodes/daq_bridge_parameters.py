@@ -1,9 +1,10 @@
 """
 The daq_bridge's parameters: names, defaults, descriptions, limits and which are fixed.
 
-The back-ends' own (``sim.*``, ``udp.*``, ``replay.*``) come from the back-end registry
-(:mod:`emfc_ros.core.device.registry`), the function-generator fields from
-:mod:`emfc_ros.core.device.bridge_settings`; ``docs/daq_bridge.md`` documents them all.
+The back-ends' own (``sim.*``, ``udp.*``, ``replay.*``, ``daqmx.*``) come from the back-end
+registry (:mod:`emfc_ros.core.device.registry`), the function-generator fields from
+:mod:`emfc_ros.core.device.bridge_settings`; ``docs/parameters.md`` lists them all (generated
+by :mod:`emfc_ros.nodes.param_reference`), ``docs/daq_bridge.md`` explains them.
 """
 
 from __future__ import annotations
@@ -16,8 +17,9 @@ from emfc_ros.core.device import registry
 from emfc_ros.core.device.backend import DEFAULT_INPUTS, DEFAULT_OUTPUTS
 from emfc_ros.core.device.bridge_settings import FUNCGEN_FIELDS, funcgen_key, RUNTIME
 
-__all__ = ['FUNCGEN_FIELDS', 'HELP_EXTRA', 'LIMITS', 'PARAMETERS', 'READ_ONLY', 'RUNTIME',
-           'STARTUP_KEYS', 'funcgen_key', 'funcgen_table']
+__all__ = ['FUNCGEN_FIELDS', 'FUNCGEN_LIMITS', 'LIMITS', 'PARAMETER_GROUPS', 'PARAMETERS',
+           'READ_ONLY', 'RUNTIME', 'STARTUP_KEYS', 'funcgen_key', 'funcgen_limits',
+           'funcgen_table']
 
 #: Parameters whose type is declared without a default (empty: derived).
 _UNSET_STRINGS = Parameter.Type.STRING_ARRAY
@@ -105,12 +107,37 @@ def funcgen_table(outputs: Any) -> Dict[str, Tuple[Any, str]]:
             for field, entry in FUNCGEN_FIELDS.items()}
 
 
+#: Inclusive limits of the generator fields, by field.
+FUNCGEN_LIMITS = {'prbs_order': (2, 31)}
+
+
+def funcgen_limits(table: Dict[str, Tuple[Any, str]]) -> Dict[str, Tuple[int, int]]:
+    """
+    The limits of the ``funcgen.<output>.<field>`` parameters of a :func:`funcgen_table`.
+
+    Parameters
+    ----------
+    table : dict
+        Parameter name to (default, description), as :func:`funcgen_table` returns.
+
+    Returns
+    -------
+    dict
+        Parameter name to inclusive ``(min, max)``, for the fields that have limits.
+    """
+    return {name: FUNCGEN_LIMITS[name.rsplit('.', 1)[1]] for name in table
+            if name.rsplit('.', 1)[1] in FUNCGEN_LIMITS}
+
+
 #: Every other parameter of the table is fixed at start-up.
 READ_ONLY = tuple(name for name in PARAMETERS if name not in RUNTIME)
 #: Shown in the start-up log line (with every parameter set to a non-default value).
 STARTUP_KEYS = ('backend', 'excitation_mode', 'sample_rate_Hz', 'block_size', 'autostart')
-HELP_EXTRA = ('funcgen.<output>.<field> (one group per output, <output> without its _V '
-              'suffix; settable at run time): ' + '; '.join(
-                  f'{field} (default {default!r}): {text}'
-                  for field, (default, text) in FUNCGEN_FIELDS.items())
-              + '; prbs_order from 2 to 31.')
+#: Declared once per output (``--help`` and docs/parameters.md show the fields once).
+_FUNCGEN_GROUP = funcgen_table(['<output>'])
+PARAMETER_GROUPS = {
+    'funcgen.<output>.*': ('the on-device function generator, one group per output '
+                           '(<output>: its name without the _V suffix, funcgen.coil.* for '
+                           'coil_V); settable at run time', _FUNCGEN_GROUP,
+                           funcgen_limits(_FUNCGEN_GROUP)),
+}

@@ -6,7 +6,11 @@ node ``(default, description, read_only)``), plus optionally ``LIMITS`` (name: `
 max)``, inclusive, in the parameter's unit) and ``READ_ONLY`` (names fixed at start-up).
 :func:`declare_table` turns them into parameter descriptors with a ``FloatingPointRange``
 or ``IntegerRange`` and ``read_only``, so that ``ros2 param describe`` shows the limits and
-``ros2 param set`` is refused at once outside them.
+``ros2 param set`` is refused at once outside them. A node module may also keep
+``PARAMETER_GROUPS`` (parameters declared once per item of another parameter: title to
+``(text, table, limits)``, the names with a placeholder) and ``HELP_EXTRA`` (free text on
+further parameters); :func:`node_table` gathers them all, for ``--help`` (:func:`help_text`)
+and the parameter reference (:mod:`emfc_ros.nodes.param_reference`, ``docs/parameters.md``).
 
 A start-up value (``-p name:=value``, a params file) outside the limits or of the wrong type
 does not end the node: the parameter keeps its default, the problem is logged as an error
@@ -16,6 +20,7 @@ naming the parameter and returned, and the node reports it (state ``error`` and
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, Iterable, List, Mapping, Optional, Sequence, Tuple
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
@@ -299,9 +304,28 @@ def _type_name(default: Any) -> str:
     """The ROS type name of a default value (or of a declared type)."""
     if isinstance(default, Parameter.Type):
         return default.name.lower()
-    if isinstance(default, list):
-        return 'array'
+    if isinstance(default, (list, tuple)):
+        kinds = {_TYPE_NAMES.get(type(v)) for v in default}
+        return f'{kinds.pop()}_array' if len(kinds) == 1 and None not in kinds else 'array'
     return _TYPE_NAMES.get(type(default), type(default).__name__)
+
+
+def type_name(default: Any) -> str:
+    """
+    The ROS parameter type of a table entry's default (``double``, ``string_array``...).
+
+    Parameters
+    ----------
+    default : object or rclpy.parameter.Parameter.Type
+        The default value, or the type of a parameter declared without one.
+
+    Returns
+    -------
+    str
+        The type as ``ros2 param describe`` names it, in lower case (``array`` for an
+        empty or mixed list).
+    """
+    return _type_name(default)
 
 
 def describe_limits(desc: ParameterDescriptor) -> str:
@@ -324,9 +348,127 @@ def describe_limits(desc: ParameterDescriptor) -> str:
     return ''
 
 
+@dataclasses.dataclass(frozen=True)
+class TableRow:
+    """
+    One parameter of a node's table, with its limits and whether it is fixed.
+
+    Attributes
+    ----------
+    name : str
+        The parameter's name.
+    default : object or rclpy.parameter.Parameter.Type
+        Its default (a ``Parameter.Type``: declared with that type and no value).
+    text : str
+        Its description, with the unit.
+    limits : tuple, optional
+        Inclusive ``(min, max)``, or None.
+    read_only : bool
+        Fixed at start-up.
+    """
+
+    name: str
+    default: Any
+    text: str
+    limits: Optional[Limits]
+    read_only: bool
+
+
+def table_rows(table: Mapping[str, Sequence], limits: Optional[Mapping[str, Limits]] = None,
+               read_only: Iterable[str] = ()) -> List[TableRow]:
+    """
+    The entries of a parameter table, in its order, with limits and read-only merged in.
+
+    Parameters
+    ----------
+    table, limits, read_only
+        As for :func:`declare_table`.
+
+    Returns
+    -------
+    list of TableRow
+        One per parameter.
+    """
+    limits = dict(limits or {})
+    fixed = set(read_only)
+    rows = []
+    for pname, value in table.items():
+        default, text, ro = _entry(value)
+        rows.append(TableRow(pname, default, text, limits.get(pname), ro or pname in fixed))
+    return rows
+
+
+#: A parameter group: what it is, its table (names with a placeholder) and its limits.
+Group = Tuple[str, Mapping[str, Sequence], Mapping[str, Limits]]
+
+
+@dataclasses.dataclass(frozen=True)
+class NodeTable:
+    """
+    Everything a node module says about its parameters (see the module docstring).
+
+    Attributes
+    ----------
+    doc : str
+        The module's docstring (purpose, topics, services).
+    table : mapping
+        ``PARAMETERS``.
+    limits : mapping
+        ``LIMITS``.
+    read_only : tuple of str
+        ``READ_ONLY``.
+    groups : mapping
+        ``PARAMETER_GROUPS``: title to ``(text, table, limits)``.
+    extra : str
+        ``HELP_EXTRA``.
+    """
+
+    doc: str
+    table: Mapping[str, Sequence]
+    limits: Mapping[str, Limits]
+    read_only: Tuple[str, ...]
+    groups: Mapping[str, Group]
+    extra: str
+
+    def rows(self) -> List[TableRow]:
+        """
+        The table's parameters (:func:`table_rows`).
+
+        Returns
+        -------
+        list of TableRow
+            One per entry of ``PARAMETERS``.
+        """
+        return table_rows(self.table, self.limits, self.read_only)
+
+
+def node_table(module: Any) -> NodeTable:
+    """
+    Gather a node module's parameter tables (all optional; absent: empty).
+
+    Parameters
+    ----------
+    module : module or None
+        A node module (``emfc_ros.nodes.<name>``).
+
+    Returns
+    -------
+    NodeTable
+        Its docstring, ``PARAMETERS``, ``LIMITS``, ``READ_ONLY``, ``PARAMETER_GROUPS`` and
+        ``HELP_EXTRA``.
+    """
+    return NodeTable(getattr(module, '__doc__', '') or '',
+                     dict(getattr(module, 'PARAMETERS', {}) or {}),
+                     dict(getattr(module, 'LIMITS', {}) or {}),
+                     tuple(getattr(module, 'READ_ONLY', ()) or ()),
+                     dict(getattr(module, 'PARAMETER_GROUPS', {}) or {}),
+                     getattr(module, 'HELP_EXTRA', '') or '')
+
+
 def help_text(name: str, doc: str, table: Mapping[str, Sequence],
               limits: Optional[Mapping[str, Limits]] = None,
-              read_only: Iterable[str] = (), extra: str = '') -> str:
+              read_only: Iterable[str] = (), extra: str = '',
+              groups: Optional[Mapping[str, Group]] = None) -> str:
     """
     The ``--help`` text of a node executable.
 
@@ -340,6 +482,8 @@ def help_text(name: str, doc: str, table: Mapping[str, Sequence],
         As for :func:`declare_table`.
     extra : str, optional
         Further parameters not in the table (free text).
+    groups : mapping, optional
+        Parameter groups: title to ``(text, table, limits)`` (:class:`NodeTable`).
 
     Returns
     -------
@@ -347,30 +491,35 @@ def help_text(name: str, doc: str, table: Mapping[str, Sequence],
         Usage, the docstring, and one entry per parameter: default, limits, fixed at
         start-up, description.
     """
-    limits = dict(limits or {})
-    fixed = set(read_only)
     lines = [f'usage: {name} [--help] [--ros-args -p NAME:=VALUE ... '
              '[--params-file FILE] [-r FROM:=TO] ...]', '']
     lines += [line.rstrip() for line in (doc or '').strip().splitlines()]
     lines += ['', 'Parameters (name: type, default; limits; description):', '']
-    for pname, value in table.items():
-        default, text, ro = _entry(value)
-        kind = _type_name(default)
-        shown = default if not isinstance(default, Parameter.Type) else 'unset'
-        head = f'  {pname}: {kind}, default {shown!r}'
-        if pname in limits:
-            low, high = limits[pname]
-            head += f'; from {low} to {high}'
-        if ro or pname in fixed:
-            head += '; read-only (fixed at start-up)'
-        lines.append(head)
-        lines += _wrap(text, '      ')
+    lines += _help_entries(table_rows(table, limits, read_only))
+    for title, (text, group, group_limits) in (groups or {}).items():
+        lines += [''] + _wrap(f'{title}: {text}', '  ')
+        lines += _help_entries(table_rows(group, group_limits))
     if extra:
         lines += [''] + _wrap(extra, '  ')
     lines += [''] + _wrap(f'Start it with `ros2 run emfc_ros {name} --ros-args ...`; `ros2 '
                           f'param describe /<namespace>/{name} <parameter>` shows the same '
                           'limits on a running node.', '')
     return '\n'.join(lines) + '\n'
+
+
+def _help_entries(rows: Sequence[TableRow]) -> List[str]:
+    """The ``--help`` lines of parameters: a head line each, the description wrapped."""
+    lines = []
+    for row in rows:
+        shown = row.default if not isinstance(row.default, Parameter.Type) else 'unset'
+        head = f'  {row.name}: {_type_name(row.default)}, default {shown!r}'
+        if row.limits is not None:
+            head += f'; from {row.limits[0]} to {row.limits[1]}'
+        if row.read_only:
+            head += '; read-only (fixed at start-up)'
+        lines.append(head)
+        lines += _wrap(row.text, '      ')
+    return lines
 
 
 def _wrap(text: str, indent: str, width: int = 92) -> List[str]:

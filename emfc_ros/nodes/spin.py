@@ -13,7 +13,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.logging import get_logger
 from rclpy.node import Node
 
-from emfc_ros.nodes.params import help_text, startup_line
+from emfc_ros.nodes.params import help_text, node_table, startup_line
 
 #: Arguments that ask for the node's help (before any ``--ros-args``).
 HELP_FLAGS = ('-h', '--help')
@@ -132,11 +132,9 @@ def node_main(factory: Callable[[], Node], name: str,
     def main(args: Optional[List[str]] = None) -> int:
         argv = sys.argv[1:] if args is None else list(args)
         if wants_help(argv):
-            module = sys.modules.get(factory.__module__)
-            sys.stdout.write(help_text(
-                name, getattr(module, '__doc__', '') or '', getattr(module, 'PARAMETERS', {}),
-                getattr(module, 'LIMITS', {}), getattr(module, 'READ_ONLY', ()),
-                getattr(module, 'HELP_EXTRA', '')))
+            tables = node_table(sys.modules.get(factory.__module__))
+            sys.stdout.write(help_text(name, tables.doc, tables.table, tables.limits,
+                                       tables.read_only, tables.extra, tables.groups))
             return 0
         return run_node(factory, args, warm_up=warm_up)
 

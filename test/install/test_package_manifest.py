@@ -1,12 +1,12 @@
 """
 package.xml declares what the installed code imports (the stand-in for ``rosdep install``).
 
-``rosdep install --from-paths src`` (README, install 3.) installs a package's ``package.xml``
+``rosdep install --from-paths src`` (docs/install.md, 3.) installs a package's ``package.xml``
 dependencies; it needs a ROS distribution and its database, which are not here. This checks
 the input it reads: every ROS package and library the installed modules and launch files
 import is an
-``exec_depend`` (Python libraries under their rosdep keys), except the libraries the README
-says to install with pip (``rosbags``, ``mcap``, ``threadpoolctl``) and the optional extra
+``exec_depend`` (Python libraries under their rosdep keys), except the libraries the install
+page says to install with pip (``rosbags``, ``mcap``, ``threadpoolctl``) and the optional extra
 ``plot`` (``matplotlib``). numba is a requirement (issue 14): in ``install_requires`` and in
 ``package.xml`` under its rosdep key ``python3-numba``; the ``fast`` extra stays as an alias.
 """
@@ -20,7 +20,7 @@ REPO = Path(__file__).resolve().parents[2]
 #: rosdep keys of the Python libraries.
 ROSDEP_KEYS = {'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'yaml': 'python3-yaml',
                'numba': 'python3-numba'}
-#: Not from rosdep: the README's `pip install rosbags mcap threadpoolctl`, and the optional
+#: Not from rosdep: docs/install.md's `pip install rosbags mcap threadpoolctl`, and the optional
 #: extras plot and daqmx (NI's nidaqmx client, its grpc, and the session_pb2 module its
 #: gRPC stubs import).
 PIP_ONLY = {'rosbags', 'mcap', 'threadpoolctl', 'matplotlib', 'nidaqmx', 'grpc', 'session_pb2'}
@@ -46,12 +46,12 @@ def test_every_import_is_an_exec_depend_or_a_documented_pip_install():
     assert needed - declared == set(), 'imported but not in package.xml'
     assert declared - needed == set(), 'in package.xml but never imported'
     assert manifest.find('export/build_type').text == 'ament_python'
-    readme = (REPO / 'README.md').read_text()
-    assert 'pip install rosbags mcap threadpoolctl' in readme
+    install = (REPO / 'docs' / 'install.md').read_text()
+    assert 'pip install rosbags mcap threadpoolctl' in install
     setup_py = (REPO / 'setup.py').read_text()
     for extra, lib in (('fast', 'numba'), ('plot', 'matplotlib'), ('daqmx', 'nidaqmx')):
         assert f"'{extra}': ['{lib}" in setup_py
-    assert "'.[daqmx]'" in readme
+    assert "'.[daqmx]'" in install and "'.[daqmx]'" in (REPO / 'README.md').read_text()
 
 
 def _install_requires() -> list:

@@ -191,7 +191,7 @@ def _settled(values, n=10, spread_kg=1e-4):
 
 @pytest.mark.slow
 def test_the_documented_closed_loop_lines_run_as_typed(processes, executor, ros_context):
-    readme = _closed_loop_lines(REPO / 'README.md', '### Closed loop and weighing')
+    readme = _closed_loop_lines(REPO / 'docs' / 'nodes.md', '## Closed loop and weighing')
     docs = _closed_loop_lines(REPO / 'docs' / 'closed_loop.md', '### Try it (the defaults)')
     assert readme == docs and len(docs) == 4
     user = Terminals(processes, executor, ros_context)

@@ -722,9 +722,9 @@ def test_an_invalid_min_subscribers_is_an_error_that_says_why(executor, ros_cont
 
 
 def _readme_block(after: str):
-    """The shell lines of the first ``bash`` block after a sentence of the README."""
-    from pathlib import Path
-    text = (Path(__file__).resolve().parents[2] / 'README.md').read_text()
+    """The shell lines of the first ``bash`` block after a sentence of the user docs."""
+    import readme_lines
+    text = readme_lines.user_docs_text()
     start = text.index('```bash', text.index(after)) + len('```bash')
     block = text[start:text.index('```', start)].replace('\\\n', '')
     return [line.strip() for line in block.splitlines() if line.strip()]

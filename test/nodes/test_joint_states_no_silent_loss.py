@@ -27,6 +27,7 @@ import yaml
 from emfc_ros.core.config import unflatten
 from emfc_ros.core.signals import experiment_from_config
 from emfc_ros.nodes.convert import LATCHED_QOS
+import readme_lines
 import ros_harness
 from ros_harness import scaled
 
@@ -58,8 +59,8 @@ def _argv(name, params):
 
 
 def readme_recorder_argv():
-    """The README's ``ros2 run emfc_ros recorder ... use_sim_time`` line, as argv."""
-    text = (REPO / 'README.md').read_text().replace('\\\n', '')   # shell line continuations
+    """The user docs' ``ros2 run emfc_ros recorder ... use_sim_time`` line, as argv."""
+    text = readme_lines.user_docs_text().replace('\\\n', '')   # shell line continuations
     lines = [line for line in text.splitlines()
              if line.startswith('ros2 run emfc_ros recorder') and 'use_sim_time:=true' in line]
     assert len(lines) == 1, lines

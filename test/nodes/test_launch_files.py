@@ -114,7 +114,9 @@ def installed(stub, file_name):
 
 def documented_lines(stub, file_name):
     """
-    Every ``ros2 launch emfc_ros <file> ...`` line of README.md, docs/ and the docstring.
+    Every ``ros2 launch emfc_ros <file> ...`` line of the docs and the docstring.
+
+    The user docs (README.md and its guide pages) come first, then the other docs pages.
 
     Returns
     -------
@@ -122,8 +124,10 @@ def documented_lines(stub, file_name):
         Where the line is first found, and its launch arguments (each distinct list once).
     """
     docstring = ast.get_docstring(ast.parse(installed(stub, file_name).read_text()))
-    sources = [('README.md', (REPO / 'README.md').read_text())]
-    sources += [(f'docs/{p.name}', p.read_text()) for p in sorted((REPO / 'docs').glob('*.md'))]
+    guide = [str(p.relative_to(REPO)) for p in readme_lines.GUIDE_PAGES]
+    sources = [(name, (REPO / name).read_text()) for name in guide]
+    sources += [(f'docs/{p.name}', p.read_text()) for p in sorted((REPO / 'docs').glob('*.md'))
+                if f'docs/{p.name}' not in guide]
     sources.append((f'{file_name} docstring', docstring))
     out = {}
     for where, text in sources:
@@ -504,12 +508,14 @@ SIM_RECORDER = 'ros2 run emfc_ros recorder --ros-args -r __ns:=/emfc -p use_sim_
 
 def _sim_experiment(stub, folder, order):
     """
-    The README's sim_experiment line and its recorder line, in the given start order.
+    The guide's sim_experiment line and its recorder line, in the given start order.
+
+    Both are docs/nodes.md's.
 
     Returns what was seen and the bag; the launch and the recorder are stopped (Ctrl-C).
     """
     where, args = documented_lines(stub, 'sim_experiment.launch.py')[0]
-    assert where == 'README.md'
+    assert where == 'docs/nodes.md'
     experiment = load_experiment_file(Path(sys.prefix, 'share', PACKAGE, 'config',
                                            'identification_trajectory.yaml'))
     n_blocks = -(-experiment.total_samples // 1000)
@@ -808,7 +814,7 @@ def test_hardware_experiment_applies_the_whole_trajectory_and_is_identified(tool
 @pytest.mark.slow
 def test_hardware_experiment_lines_start_at_sample_0(tools, tmp_path):
     """
-    The other documented hardware lines (README, docs/daq_bridge.md), from sample 0.
+    The other documented hardware lines (docs/nodes.md, docs/daq_bridge.md), from sample 0.
 
     Each with a 0.5 s experiment added (``experiment_file:=``, the last value wins),
     against the README's ``emfc-device-emulator --port 5555``; this test's listener
@@ -816,7 +822,7 @@ def test_hardware_experiment_lines_start_at_sample_0(tools, tmp_path):
     """
     lines = [(w, a) for w, a in documented_lines(tools, 'hardware_experiment.launch.py')
              if not w.endswith('docstring')]
-    assert ('README.md', []) in lines and len(lines) >= 2, lines
+    assert ('docs/nodes.md', []) in lines and len(lines) >= 2, lines
     short_file = _write_experiment(tmp_path / 'short.yaml', SHORT_EXPERIMENT)
     excitation = load_experiment_file(short_file)
     total = excitation.total_samples

@@ -57,17 +57,16 @@ PREFIX = 30
 
 def readme_blocks():
     """
-    The two shell blocks of the README's "Two computers" section.
+    The two shell blocks of the "Two computers" page (docs/two_computers.md).
 
     Returns
     -------
     list of list of str
         Per block its lines, continuation lines joined.
     """
-    text = (REPO / 'README.md').read_text()
-    match = re.search(r'^## Two computers\n(.*?)^## ', text, re.S | re.M)
-    assert match, 'README.md has no "## Two computers" section'
-    blocks = re.findall(r'```bash\n(.*?)```', match.group(1), re.S)
+    text = (REPO / 'docs' / 'two_computers.md').read_text()
+    assert text.startswith('# Two computers\n'), 'docs/two_computers.md is not that page'
+    blocks = re.findall(r'```bash\n(.*?)```', text, re.S)
     assert len(blocks) == 2, f'expected two bash blocks (bridge, recording), got {len(blocks)}'
     return [block.replace('\\\n', '').splitlines() for block in blocks]
 
