@@ -45,6 +45,7 @@ from emfc_ros.core.ident.local_polynomial import detect_excitation, local_polyno
 from emfc_ros.core.ident.mimo import estimate_two_input_frf
 from emfc_ros.core.ident.pipeline_config import IdentificationConfig
 from emfc_ros.core.ident.plant import PLANT_KEYS, PlantConfigurationError
+from emfc_ros.core.ident.scale_budget import frf_budget, ScaleBudget, static_budget
 from emfc_ros.core.ident.static_fit import fit_polynomial, PolynomialFit, with_std_floor
 from emfc_ros.core.ident.tf_fit import OrderSelection, select_order
 from emfc_ros.core.ident.unit_characteristics import unit_amplifiers
@@ -115,6 +116,11 @@ class FrfResult:
         Transfer-function fits and the chosen one.
     model_response : ndarray or None
         Response of the grey-box model's linearisation at ``frd.frequency_Hz`` [m/N].
+    systematic : ScaleBudget or None
+        The systematic (type B) part of the magnitude and of the fit's gain, relative, from
+        the stated uncertainties of the sensor, the current monitor and the force constant
+        (:func:`~emfc_ros.core.ident.scale_budget.frf_budget`); phases, poles and zeros have
+        none.
     """
 
     section: str
@@ -124,6 +130,7 @@ class FrfResult:
     selected: Optional[FrequencyResponseData] = None
     fit: Optional[OrderSelection] = None
     model_response: Optional[np.ndarray] = None
+    systematic: Optional[ScaleBudget] = None
 
     @property
     def name(self) -> str:
@@ -150,12 +157,16 @@ class StaticResult:
         of y: the current monitors' ADC step over ``sqrt(12)`` (plateau means of currents
         quantised without dither are off by up to half a step; for the load changer seen
         through its slope), :func:`~emfc_ros.core.ident.static_fit.with_std_floor`.
+    systematic : dict of str to list of ScaleBudget
+        Per fit, per coefficient (ascending powers), its systematic (type B) part, relative
+        (:func:`~emfc_ros.core.ident.scale_budget.static_budget`).
     """
 
     fits: Dict[str, PolynomialFit] = field(default_factory=dict)
     n_plateaus: Dict[str, int] = field(default_factory=dict)
     points: Dict[str, Tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     std_floor: Dict[str, float] = field(default_factory=dict)
+    systematic: Dict[str, List[ScaleBudget]] = field(default_factory=dict)
 
 
 @dataclass
@@ -451,14 +462,18 @@ def _spans(table: Sequence[Any], n: int) -> List[Span]:
     return spans
 
 
+#: The recorded force channel each FRF input takes when the recording has it.
+FORCE_CHANNELS = {'coil': 'coil_force_N', 'pan': 'load_changer_force_N'}
+
+
 def _forces(channels: Mapping[str, np.ndarray], cfg: IdentificationConfig
             ) -> Dict[str, np.ndarray]:
     bal = cfg.balance
-    coil = channels.get('coil_force_N')
+    coil = channels.get(FORCE_CHANNELS['coil'])
     if coil is None:
         coil = np.asarray(bal.motor.force_N(channels['coil_current_A'], channels['position_m']),
                           dtype=float)
-    pan = channels.get('load_changer_force_N')
+    pan = channels.get(FORCE_CHANNELS['pan'])
     if pan is None:
         pan = np.asarray(bal.load_changer.force_N(channels['load_changer_current_A']),
                          dtype=float)
@@ -501,7 +516,9 @@ def _frf_step(result: IdentificationResult, channels: Mapping[str, np.ndarray],
             continue
         for inp, frd in zip(inputs, frds):
             frd = _compensate(frd, fs, cfg.hold_compensation)
-            r = FrfResult(name, inp, frd, two_input=which == 'both')
+            recorded = FORCE_CHANNELS[inp] in channels
+            r = FrfResult(name, inp, frd, two_input=which == 'both', systematic=frf_budget(
+                result.config.balance.uncertainties, inp, force_recorded=recorded))
             if which != 'both' and cfg.selected_frequencies_Hz:
                 r.selected = _selected(cfg, forces[inp][sl], y[sl], fs, frd)
             result.frfs.append(r)
@@ -724,6 +741,9 @@ def _static_step(result: IdentificationResult, channels: Mapping[str, np.ndarray
                 static.points['load_changer'] = (np.array(im), np.array(fm))
     if not static.fits:
         result.warnings.append('static: no staircase with enough distinct levels')
+    stated = result.config.balance.uncertainties
+    static.systematic = {key: [static_budget(stated, key, k) for k in range(fit.degree + 1)]
+                         for key, fit in static.fits.items()}
     result.static = static
 
 
@@ -966,6 +986,11 @@ def _frf_dict(r: FrfResult) -> dict:
         'median_coherence': float(np.nanmedian(frd.coherence)) if frd.coherence.size else None,
         'hold_compensation': frd.details.get('hold_compensation', 'none'),
     }
+    rel = r.systematic.relative if r.systematic is not None else None
+    if r.systematic is not None:
+        # the stated characteristics scale the magnitude (not the phase): type B, relative
+        out['magnitude_systematic_relative_standard_uncertainty'] = rel
+        out['systematic_inputs'] = r.systematic.as_dict()
     # An LPM std comes from a noise variance of few complex residuals (6 or 7, 12 or 14 real
     # degrees of freedom): a 95 % interval of the magnitude or the phase needs Student's t
     # with those degrees of freedom, not 1.96 (GUM G.3); both are reported.
@@ -980,6 +1005,9 @@ def _frf_dict(r: FrfResult) -> dict:
              'magnitude_dB_re_1m_per_N': 20.0 * math.log10(abs(h)) if h != 0 else None,
              'phase_deg': math.degrees(float(np.angle(h))),
              'magnitude_std_m_per_N': sd / math.sqrt(2.0),
+             'magnitude_systematic_std_m_per_N': abs(h) * (rel or 0.0),
+             'magnitude_combined_std_m_per_N': math.hypot(sd / math.sqrt(2.0),
+                                                          abs(h) * (rel or 0.0)),
              'phase_std_deg': math.degrees(sd / (math.sqrt(2.0) * abs(h))) if h != 0 else None}
             for f, h, sd in zip(s.frequency_Hz, s.response, s.std)]
     if r.fit is not None:
@@ -993,6 +1021,8 @@ def _frf_dict(r: FrfResult) -> dict:
             'anti_resonances': [_mode_dict(m, fitted_band(r)) for m in c.anti_resonances],
             'real_zeros_Hz': [z.signed_frequency_Hz for z in c.zeros if z.is_real],
             'order_table': [dict(row) for row in r.fit.table],
+            # a scale of the FRF scales the numerator and moves no pole or zero
+            'gain_systematic_relative_standard_uncertainty': rel,
         }
     return out
 
@@ -1005,12 +1035,16 @@ def _static_dict(static: Optional[StaticResult]) -> Optional[dict]:
         units = [f'{fit.y_unit}/{fit.x_unit}^{k}' if k > 1 else
                  (f'{fit.y_unit}/{fit.x_unit}' if k == 1 else fit.y_unit)
                  for k in range(fit.degree + 1)]
+        budgets = static.systematic.get(key) or [ScaleBudget()] * (fit.degree + 1)
         out[key] = {'formula': fit.formula(),
-                    'coefficients_ascending': [{'power': k, 'value': float(v),
-                                                'standard_error': float(se), 'unit': u}
-                                               for k, (v, se, u) in enumerate(
-                                                   zip(fit.coefficients, fit.standard_errors,
-                                                       units))],
+                    'coefficients_ascending': [
+                        {'power': k, 'value': float(v), 'standard_error': float(se),
+                         'systematic_standard_uncertainty': abs(float(v)) * b.relative,
+                         'combined_standard_uncertainty': math.hypot(
+                             float(se), abs(float(v)) * b.relative),
+                         'systematic_inputs': b.as_dict(), 'unit': u}
+                        for k, (v, se, u, b) in enumerate(
+                            zip(fit.coefficients, fit.standard_errors, units, budgets))],
                     'r_squared': fit.r_squared, 'residual_std': fit.residual_std,
                     'residual_std_unit': fit.y_unit, 'n_plateaus': static.n_plateaus.get(key)}
         floor = static.std_floor.get(key, 0.0)

@@ -92,6 +92,7 @@ def summary_markdown(result: Any, plots: Sequence[str] = (),
             lines.append(f'| {r["name"]} | {r["estimator"]} | {band} | {coh} | {order} | '
                          f'{res} | {anti} |')
         lines.append('')
+        lines += frf_systematic_lines(frfs)
         for r in frfs:
             sel = r.get('selected_frequencies')
             if not sel:
@@ -109,7 +110,7 @@ def summary_markdown(result: Any, plots: Sequence[str] = (),
         lines += ['## Static characteristics', '']
         for key, fit in static.items():
             lines.append(f'- {key}: `{fit["formula"]}` (R^2 {fit["r_squared"]:.6f}, '
-                         f'{fit["n_plateaus"]} plateaus)')
+                         f'{fit["n_plateaus"]} plateaus)' + _static_systematic_text(fit))
         lines.append('')
     g = d.get('greybox')
     if g:
@@ -168,6 +169,47 @@ def summary_markdown(result: Any, plots: Sequence[str] = (),
     lines += ['## Warnings', ''] + ([f'- {w}' for w in warn] if warn else ['- none']) + ['']
     lines += ['All numbers with units and uncertainties are in `results.yaml`.', '']
     return '\n'.join(lines)
+
+
+def frf_systematic_lines(frfs: Sequence[Mapping[str, Any]]) -> list:
+    """
+    The systematic (type B) part of the FRF magnitudes and transfer-function gains.
+
+    Parameters
+    ----------
+    frfs : sequence of mapping
+        ``frequency_responses`` of ``results.yaml``.
+
+    Returns
+    -------
+    list of str
+        Markdown lines, one per input (empty without a stated budget).
+    """
+    seen: dict = {}
+    for r in frfs:
+        rel = r.get('magnitude_systematic_relative_standard_uncertainty')
+        if rel is not None:
+            seen.setdefault(r['input'], (rel, r.get('systematic_inputs') or {}))
+    if not seen:
+        return []
+    lines = ['Systematic (type B) part of every magnitude and transfer-function gain, from the '
+             "balance file's stated uncertainties (phases, resonance and anti-resonance "
+             'frequencies and damping ratios have none: a scale moves no pole or zero):', '']
+    for name, (rel, parts) in seen.items():
+        top = ', '.join(f'{k} {100.0 * v:.2g} %' for k, v in list(parts.items())[:2])
+        lines.append(f'- the FRFs per {name}: {100.0 * rel:.2g} % (k = 1; largest: {top})')
+    return lines + ['']
+
+
+def _static_systematic_text(fit: Mapping[str, Any]) -> str:
+    """'; systematic a %, b % per coefficient' for a static fit's line, or ''."""
+    coefs = fit.get('coefficients_ascending') or []
+    rel = [abs(c['systematic_standard_uncertainty'] / c['value']) if c.get('value') else 0.0
+           for c in coefs if 'systematic_standard_uncertainty' in c]
+    if not rel:
+        return ''
+    return ('; systematic (type B, k = 1) per coefficient in ascending powers: '
+            + ', '.join(f'{100.0 * r:.2g} %' for r in rel))
 
 
 def residual_test_note(sections: Sequence[Mapping[str, Any]]) -> list:
