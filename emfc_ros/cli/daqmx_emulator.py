@@ -3,7 +3,7 @@ emfc-daqmx-emulator: an emulated NI-DAQmx device behind an NI gRPC Device Server
 
 ``emfc-daqmx-emulator [--listen 127.0.0.1:0] [--device Dev1] [--config balance.yaml]
 [--seed S] [--load-mass-kg KG|balance] [--load-changer-coupled] [--no-noise]
-[--remove-after-s T] [--duration-s T] [--allow-remote]``
+[--remove-after-s T] [--duration-s T] [--watchdog ao|dio-pfi] [--allow-remote]``
 
 One X Series-like device (``ai0:7``, ``ao0:1``, the terminals ``/Dev1/ai/SampleClock`` and
 ``/Dev1/ai/StartTrigger``, a watchdog timer) with the simulated balance wired to its
@@ -15,8 +15,12 @@ not implement answer NI-DAQmx error -209876 (function not supported by the devic
 Prints the bound port alone on the first line of stdout (port 0, the default, picks a free
 one), then serves until SIGINT or SIGTERM or ``--duration-s``. ``--remove-after-s`` removes
 the device that long after start (every later call fails with NI-DAQmx error -200045, device
-removed), the emulated counterpart of a cable pulled out. It refuses a non-loopback
-``--listen`` host unless ``--allow-remote`` is given.
+removed), the emulated counterpart of a cable pulled out. ``--watchdog`` says what the
+device's watchdog timer covers: ``ao`` (the default) takes analog-output expiration states,
+as a CompactDAQ chassis with analog-output modules does; ``dio-pfi`` covers digital lines
+only, as an X Series device's does, and refuses AO expiration states with NI-DAQmx error
+-200197 (the back-end then runs without a hardware watchdog and says so). It refuses a
+non-loopback ``--listen`` host unless ``--allow-remote`` is given.
 
 Exit codes: 0 stopped, 1 the device failed, 2 usage or configuration error.
 """
@@ -60,6 +64,10 @@ def _parser() -> argparse.ArgumentParser:
                         help='remove the device this long after start [s] (0: never)')
     parser.add_argument('--duration-s', type=float, default=0.0,
                         help='serve this long, then exit 0 [s] (0: until a signal)')
+    parser.add_argument('--watchdog', choices=('ao', 'dio-pfi'), default='ao',
+                        help="what the watchdog timer covers: 'ao' analog outputs (as a "
+                             "CompactDAQ chassis; default), 'dio-pfi' digital lines only (as "
+                             'an X Series device: AO expiration states refused)')
     parser.add_argument('--allow-remote', action='store_true',
                         help='allow a non-loopback --listen host')
     return parser
@@ -123,7 +131,8 @@ def main(argv: Optional[List[str]] = None) -> int:
                    'load_changer_coupled': bool(args.load_changer_coupled),
                    'noise': not args.no_noise}
         plant = BalancePlant(params, args.seed, simulator_options=options)
-        device = Device(plant, args.device, clock=time.monotonic)
+        device = Device(plant, args.device, clock=time.monotonic,
+                        ao_watchdog=args.watchdog == 'ao')
         servicer = DaqmxServicer(device)
         address = f'[{host}]:{port}' if ':' in host else f'{host}:{port}'
         server, bound = serve(servicer, address)

@@ -23,7 +23,7 @@ from emfc_ros.core.device import daqmx_errors as codes
 from emfc_ros.core.device.backend import default_device_config
 from emfc_ros.core.device.daqmx_backend import DaqmxBackend
 from emfc_ros.core.device.daqmx_wiring import resolution_V
-from emfc_ros.core.device.errors import DeviceConfigError
+from emfc_ros.core.device.errors import DeviceConfigError, DeviceError
 from emfc_ros.core.device.registry import backend_from_mapping
 
 RATE = 10000.0
@@ -335,3 +335,34 @@ def test_the_registry_builds_it_from_the_bridge_parameters(emulator):
         assert 'off' in backend.watchdog_note
     finally:
         backend.close()
+
+
+def test_a_device_whose_watchdog_covers_no_analog_output_runs_without_one_and_says_so():
+    # An X Series device's watchdog timer covers its DIO and PFI lines only (NI's X Series
+    # user manual, Watchdog Timer): with daqmx.watchdog auto the back-end runs without a
+    # hardware watchdog and says why; with on it refuses to start.
+    emu = Emulator('--watchdog', 'dio-pfi')
+    try:
+        backend = _started(emu.address)
+        try:
+            assert len(_blocks(backend, 2)) == 2
+            assert backend.health()['hardware_watchdog'] == 0
+            assert backend.health()['watchdog_feeds'] == 0
+            assert 'no hardware watchdog on Dev1' in backend.watchdog_note
+            assert f'NI-DAQmx error {codes.ATTR_NOT_SUPPORTED}' in backend.watchdog_note
+            extra = backend.description_extra()['daqmx']
+            assert extra['hardware_watchdog'] is False and 'no hardware watchdog' in \
+                extra['watchdog_note']
+            assert backend.take_faults() == []
+        finally:
+            backend.close()
+        refused = DaqmxBackend(grpc_address=emu.address, watchdog='on', output_lead_s=0.2,
+                               session_prefix='emfc-on')
+        try:
+            refused.configure(_config())
+            with pytest.raises(DeviceError, match='daqmx.watchdog is on'):
+                refused.start()
+        finally:
+            refused.close()
+    finally:
+        emu.close()

@@ -36,11 +36,31 @@ class Plant(Protocol):
     """What the device's terminals are wired to (a balance, or a loopback)."""
 
     def start(self, sample_rate_Hz: float) -> None:
-        """The acquisition starts at this sample rate [Hz] (the plant restarts)."""
+        """
+        The acquisition starts at this sample rate [Hz] (the plant restarts).
+
+        Parameters
+        ----------
+        sample_rate_Hz : float
+            The AI sample clock's rate [Hz].
+        """
         ...  # pragma: no cover
 
     def step(self, ao_V: np.ndarray) -> Dict[str, np.ndarray]:
-        """AO volts ``(n_ao, n)`` of the device's outputs in order -> AI volts by terminal."""
+        """
+        AO volts ``(n_ao, n)`` of the device's outputs in order -> AI volts by terminal.
+
+        Parameters
+        ----------
+        ao_V : numpy.ndarray, shape (n_ao, n)
+            What each output drives at the next ``n`` ticks [V], outputs in the device's order.
+
+        Returns
+        -------
+        dict of str to numpy.ndarray
+            The input voltages at those ticks [V], ``n`` each, by AI terminal (``'ai0'``);
+            terminals not named read 0 V.
+        """
         ...  # pragma: no cover
 
 
@@ -49,7 +69,16 @@ MAX_RATE_HZ = 2e6
 
 
 class DaqmxError(EmfcError, RuntimeError):
-    """An NI-DAQmx error: its code and NI's text."""
+    """
+    An NI-DAQmx error: its code and NI's text.
+
+    Parameters
+    ----------
+    code : int
+        The NI-DAQmx error code (:mod:`emfc_ros.core.device.daqmx_errors`).
+    detail : str
+        Appended to NI's text on a line of its own (task, channel, property), if not empty.
+    """
 
     def __init__(self, code: int, detail: str = '') -> None:
         self.code = int(code)
@@ -116,12 +145,17 @@ class Device:
         Analog inputs and outputs.
     clock : callable
         Monotonic time [s] (injected).
+    ao_watchdog : bool
+        The watchdog timer takes analog-output expiration states (as a CompactDAQ chassis
+        with analog-output modules does); False: it covers digital lines only (as an X Series
+        device's, which covers its DIO and PFI lines), and AO expiration states are refused.
     """
 
     def __init__(self, plant: Plant, name: str = 'Dev1', n_ai: int = 8, n_ao: int = 2, *,
-                 clock: Callable[[], float]) -> None:
+                 clock: Callable[[], float], ao_watchdog: bool = True) -> None:
         self.plant = plant
         self.name = name
+        self.ao_watchdog = bool(ao_watchdog)
         self.ai_terminals = tuple(f'ai{i}' for i in range(n_ai))
         self.ao_terminals = tuple(f'ao{i}' for i in range(n_ao))
         self.clock = clock
@@ -148,7 +182,19 @@ class Device:
     # -- configuration ------------------------------------------------------------------------
 
     def create_task(self, name: str) -> Task:
-        """A new task (its name must be unique)."""
+        """
+        A new task (its name must be unique).
+
+        Parameters
+        ----------
+        name : str
+            The task's name; DUPLICATE_TASK if the device has one of that name.
+
+        Returns
+        -------
+        Task
+            The task, not configured.
+        """
         self._check_present()
         if name in self.tasks:
             raise DaqmxError(codes.DUPLICATE_TASK, f'Task Name: {name}')
@@ -157,14 +203,33 @@ class Device:
         return task
 
     def task(self, name: str) -> Task:
-        """The task of a name (INVALID_TASK if none)."""
+        """
+        The task of a name (INVALID_TASK if none).
+
+        Parameters
+        ----------
+        name : str
+            The task's name.
+
+        Returns
+        -------
+        Task
+            The task.
+        """
         try:
             return self.tasks[name]
         except KeyError:
             raise DaqmxError(codes.INVALID_TASK, f'Task Name: {name}') from None
 
     def clear(self, name: str) -> None:
-        """Stop and forget a task (unknown names are ignored, as DAQmxClearTask does)."""
+        """
+        Stop and forget a task (unknown names are ignored, as DAQmxClearTask does).
+
+        Parameters
+        ----------
+        name : str
+            The task's name (a watchdog task's too: the watchdog goes with it).
+        """
         task = self.tasks.get(name)
         if task is not None and task.running:
             self.stop(task)
@@ -174,7 +239,23 @@ class Device:
 
     def add_channels(self, task: Task, kind: str, physical: str, name: str, min_V: float,
                      max_V: float) -> None:
-        """Add voltage channels (``'Dev1/ai0:2'`` expands) to a task of one kind."""
+        """
+        Add voltage channels (``'Dev1/ai0:2'`` expands) to a task of one kind.
+
+        Parameters
+        ----------
+        task : Task
+            The task; all its channels are of one kind.
+        kind : str
+            ``'ai'`` or ``'ao'``.
+        physical : str
+            Physical channels, ``'Dev1/ai0:2, Dev1/ai5'`` (:func:`expand`).
+        name : str
+            The channels' names, comma separated; ``''`` (or too few) names the rest
+            ``'Dev1/ai0'`` and so on.
+        min_V, max_V : float
+            The channels' range [V], within -10..10 V.
+        """
         self._check_present()
         terminals = self.ai_terminals if kind == 'ai' else self.ao_terminals
         names = [n.strip() for n in name.split(',')] if name else []
@@ -197,7 +278,21 @@ class Device:
             task.last_V = np.zeros(len(task.channels))
 
     def timing(self, task: Task, source: str, rate_Hz: float, buffer_samples: int) -> None:
-        """Sample-clock timing, continuous (``source`` '' or the AI sample clock)."""
+        """
+        Sample-clock timing, continuous (``source`` '' or the AI sample clock).
+
+        Parameters
+        ----------
+        task : Task
+            The task.
+        source : str
+            ``''`` or ``'OnboardClock'`` for the task's own clock, or :attr:`sample_clock` (AO
+            tasks only) to tick with the AI task.
+        rate_Hz : float
+            Sample rate [Hz], up to MAX_RATE_HZ.
+        buffer_samples : int
+            Buffer size [samples per channel], at least 1.
+        """
         self._check_present()
         if source in ('OnboardClock',):
             source = ''
@@ -213,7 +308,16 @@ class Device:
         task.buffer_samples = max(int(buffer_samples), 1)
 
     def start_trigger_on(self, task: Task, source: str) -> None:
-        """A digital-edge start trigger: only the AI start trigger is routed."""
+        """
+        A digital-edge start trigger: only the AI start trigger is routed.
+
+        Parameters
+        ----------
+        task : Task
+            An AO task.
+        source : str
+            :attr:`start_trigger`.
+        """
         self._check_present()
         if source != self.start_trigger or task.kind != 'ao':
             raise DaqmxError(codes.INVALID_ROUTING_SOURCE_TERMINAL_NAME,
@@ -222,7 +326,23 @@ class Device:
 
     def create_watchdog(self, task_name: str, timeout_s: float,
                         expiration_V: Dict[str, float]) -> Watchdog:
-        """A watchdog task: outputs ``{'ao0': V}`` on expiry; ``timeout_s`` > 0."""
+        """
+        A watchdog task: outputs ``{'ao0': V}`` on expiry; ``timeout_s`` > 0.
+
+        Parameters
+        ----------
+        task_name : str
+            The watchdog task's name (unique).
+        timeout_s : float
+            Time without a feed after which it expires [s], > 0.
+        expiration_V : dict of str to float
+            Output states on expiry [V] by AO terminal (``'ao0'``); more can be added later.
+
+        Returns
+        -------
+        Watchdog
+            The device's watchdog, not started.
+        """
         self._check_present()
         for term in expiration_V:
             if term not in self.ao_terminals:
@@ -261,7 +381,15 @@ class Device:
         return next((t for t in self.tasks.values() if t.kind == 'ai' and t.running), None)
 
     def start(self, task: Task) -> None:
-        """Start a task: an onboard-clocked one from now, a slaved one at its master's tick."""
+        """
+        Start a task: an onboard-clocked one from now, a slaved one at its master's tick.
+
+        Parameters
+        ----------
+        task : Task
+            The task; an AO task on the AI sample clock or start trigger waits (armed) until the
+            AI task starts.
+        """
         self._check_present()
         self.advance()
         task.error = None
@@ -302,7 +430,14 @@ class Device:
         task.t0 = now
 
     def stop(self, task: Task) -> None:
-        """Stop a task (AO outputs hold their last value)."""
+        """
+        Stop a task (AO outputs hold their last value).
+
+        Parameters
+        ----------
+        task : Task
+            The task.
+        """
         self.advance()
         task.running = False
         task.armed = False
@@ -432,7 +567,19 @@ class Device:
             master.data = [np.concatenate(master.data, axis=1)]
 
     def available(self, task: Task) -> int:
-        """AI samples acquired and not yet read."""
+        """
+        AI samples acquired and not yet read.
+
+        Parameters
+        ----------
+        task : Task
+            An AI task.
+
+        Returns
+        -------
+        int
+            Samples per channel.
+        """
         self._check_present()
         self.advance()
         return task.produced - task.consumed
@@ -440,6 +587,18 @@ class Device:
     def read(self, task: Task, n: int) -> np.ndarray:
         """
         Read ``n`` samples per channel of a running AI task (now; the caller waits).
+
+        Parameters
+        ----------
+        task : Task
+            A running AI task.
+        n : int
+            Samples per channel.
+
+        Returns
+        -------
+        numpy.ndarray, shape (channels, n)
+            The next samples [V], quantised to the channels' ranges.
 
         Raises
         ------
@@ -461,6 +620,18 @@ class Device:
     def write(self, task: Task, samples_V: np.ndarray) -> int:
         """
         Append samples ``(channels, n)`` [V] to an AO task's buffer; returns n written.
+
+        Parameters
+        ----------
+        task : Task
+            An AO task (without a sample rate: on demand, the last sample is output at once).
+        samples_V : numpy.ndarray
+            Reshaped to ``(channels, n)`` [V]; clipped to the channels' ranges.
+
+        Returns
+        -------
+        int
+            ``n``, the samples per channel written.
 
         Raises
         ------
@@ -491,7 +662,21 @@ class Device:
 
 
 def expand(physical: str, device: str) -> Sequence[str]:
-    """``'Dev1/ai0:2, Dev1/ai5'`` to ``['ai0', 'ai1', 'ai2', 'ai5']``."""
+    """
+    ``'Dev1/ai0:2, Dev1/ai5'`` to ``['ai0', 'ai1', 'ai2', 'ai5']``.
+
+    Parameters
+    ----------
+    physical : str
+        Physical channels, comma separated; a range ``a:b`` may run down.
+    device : str
+        The device's name; a channel of another device is INVALID_PHYS_CHAN_NAME.
+
+    Returns
+    -------
+    list of str
+        The terminals in order.
+    """
     out: List[str] = []
     for part in (p.strip() for p in physical.split(',') if p.strip()):
         dev, _, term = part.rpartition('/')

@@ -150,7 +150,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def GetSystemInfoAttributeUInt32(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Driver version (major, minor, update)."""
+        """
+        Driver version (major, minor, update).
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.GetSystemInfoAttributeUInt32Request
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.GetSystemInfoAttributeUInt32Response
+            ``value``: the part of the driver version asked for.
+        """
         attr = request.attribute_raw
         if attr in SYS_DRIVER_VERSION:
             return pb.GetSystemInfoAttributeUInt32Response(
@@ -159,13 +174,42 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def GetSystemInfoAttributeString(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """The device names."""
+        """
+        The device names.
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.GetSystemInfoAttributeStringRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.GetSystemInfoAttributeStringResponse
+            ``value``: the device's name.
+        """
         if request.attribute_raw == SYS_DEV_NAMES:
             return pb.GetSystemInfoAttributeStringResponse(value=self.device.name)
         raise DaqmxError(codes.ATTR_NOT_SUPPORTED, f'Property: 0x{request.attribute_raw:X}')
 
     def GetErrorString(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """The text of an error code (NI's)."""
+        """
+        The text of an error code (NI's).
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.GetErrorStringRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call (not used).
+
+        Returns
+        -------
+        nidaqmx_pb2.GetErrorStringResponse
+            ``error_string``: the text.
+        """
         return pb.GetErrorStringResponse(error_string=codes.text(request.error_code))
 
     # -- tasks --------------------------------------------------------------------------------
@@ -190,6 +234,19 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
         ``INITIALIZE_SERVER_SESSION`` creates it (an existing one is an error),
         ``ATTACH_TO_SERVER_SESSION`` attaches (a missing one is an error). An empty name gets
         NI's ``_unnamedTask<n>``.
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.CreateTaskRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.CreateTaskResponse
+            ``task``: the session; ``new_session_initialized``: whether it was created.
         """
         with self.lock:
             name = request.session_name
@@ -204,21 +261,66 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def ClearTask(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Stop and forget a task."""
+        """
+        Stop and forget a task.
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.ClearTaskRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.ClearTaskResponse
+            Empty: NI's answer of success.
+        """
         with self.lock:
             self.device.clear(request.task.name)
             return pb.ClearTaskResponse()
 
     @_rpc
     def StartTask(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Start a task."""
+        """
+        Start a task.
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.StartTaskRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.StartTaskResponse
+            Empty: NI's answer of success.
+        """
         with self.lock:
             self.device.start(self._task(request.task))
             return pb.StartTaskResponse()
 
     @_rpc
     def StopTask(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Stop a task; its latched error, if any, is the answer (as DAQmxStopTask)."""
+        """
+        Stop a task; its latched error, if any, is the answer (as DAQmxStopTask).
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.StopTaskRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.StopTaskResponse
+            Empty: NI's answer of success.
+        """
         with self.lock:
             task = self._task(request.task)
             self.device.stop(task)
@@ -229,7 +331,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def TaskControl(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Start, stop or abort (verify, commit, reserve and unreserve do nothing here)."""
+        """
+        Start, stop or abort (verify, commit, reserve and unreserve do nothing here).
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.TaskControlRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.TaskControlResponse
+            Empty: NI's answer of success.
+        """
         with self.lock:
             task = self._task(request.task)
             if request.action_raw == TASK_START:
@@ -240,7 +357,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def IsTaskDone(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """A continuous task is done only when stopped or failed."""
+        """
+        A continuous task is done only when stopped or failed.
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.IsTaskDoneRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.IsTaskDoneResponse
+            ``is_task_done``.
+        """
         with self.lock:
             task = self._task(request.task)
             self.device.advance()
@@ -249,7 +381,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def GetTaskAttributeString(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Task name, channel names."""
+        """
+        Task name, channel names.
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.GetTaskAttributeStringRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.GetTaskAttributeStringResponse
+            ``value``: the task's name or its channels' names, comma separated.
+        """
         with self.lock:
             task = self._task(request.task)
             if request.attribute_raw == ATTR_TASK_NAME:
@@ -261,7 +408,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def GetTaskAttributeUInt32(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Number of channels."""
+        """
+        Number of channels.
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.GetTaskAttributeUInt32Request
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.GetTaskAttributeUInt32Response
+            ``value``: the number of channels.
+        """
         with self.lock:
             task = self._task(request.task)
             if request.attribute_raw == ATTR_TASK_NUM_CHANS:
@@ -270,7 +432,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def GetTaskAttributeBool(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Task complete."""
+        """
+        Task complete.
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.GetTaskAttributeBoolRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.GetTaskAttributeBoolResponse
+            ``value``: true when the task is not running.
+        """
         with self.lock:
             task = self._task(request.task)
             if request.attribute_raw == ATTR_TASK_COMPLETE:
@@ -281,7 +458,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def CreateAIVoltageChan(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Voltage inputs (any terminal configuration; the emulated inputs are ideal)."""
+        """
+        Voltage inputs (any terminal configuration; the emulated inputs are ideal).
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.CreateAIVoltageChanRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.CreateAIVoltageChanResponse
+            Empty: NI's answer of success.
+        """
         with self.lock:
             self.device.add_channels(self._task(request.task), 'ai', request.physical_channel,
                                      request.name_to_assign_to_channel, request.min_val,
@@ -290,7 +482,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def CreateAOVoltageChan(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Voltage outputs."""
+        """
+        Voltage outputs.
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.CreateAOVoltageChanRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.CreateAOVoltageChanResponse
+            Empty: NI's answer of success.
+        """
         with self.lock:
             self.device.add_channels(self._task(request.task), 'ao', request.physical_channel,
                                      request.name_to_assign_to_channel, request.min_val,
@@ -315,7 +522,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def GetChanAttributeInt32(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Channel type, measurement and output type."""
+        """
+        Channel type, measurement and output type.
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.GetChanAttributeInt32Request
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.GetChanAttributeInt32Response
+            ``value_raw``: the channel type (CHAN_AI, CHAN_AO) or VOLTAGE.
+        """
         with self.lock:
             task, _ = self._channel(request)
             attr = request.attribute_raw
@@ -328,7 +550,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def GetChanAttributeDouble(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """A channel's minimum and maximum [V]."""
+        """
+        A channel's minimum and maximum [V].
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.GetChanAttributeDoubleRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.GetChanAttributeDoubleResponse
+            ``value``: the minimum or the maximum [V].
+        """
         with self.lock:
             _, ch = self._channel(request)
             attr = request.attribute_raw
@@ -342,7 +579,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def CfgSampClkTiming(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Continuous sample-clock timing (finite acquisitions are not emulated)."""
+        """
+        Continuous sample-clock timing (finite acquisitions are not emulated).
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.CfgSampClkTimingRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.CfgSampClkTimingResponse
+            Empty: NI's answer of success.
+        """
         with self.lock:
             task = self._task(request.task)
             if request.sample_mode_raw != CONTINUOUS:
@@ -357,21 +609,66 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def CfgDigEdgeStartTrig(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Start trigger on the AI start trigger."""
+        """
+        Start trigger on the AI start trigger.
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.CfgDigEdgeStartTrigRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.CfgDigEdgeStartTrigResponse
+            Empty: NI's answer of success.
+        """
         with self.lock:
             self.device.start_trigger_on(self._task(request.task), request.trigger_source)
             return pb.CfgDigEdgeStartTrigResponse()
 
     @_rpc
     def DisableStartTrig(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """No start trigger."""
+        """
+        No start trigger.
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.DisableStartTrigRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.DisableStartTrigResponse
+            Empty: NI's answer of success.
+        """
         with self.lock:
             self._task(request.task).trigger = ''
             return pb.DisableStartTrigResponse()
 
     @_rpc
     def GetTimingAttributeDouble(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """The sample clock rate [Hz]."""
+        """
+        The sample clock rate [Hz].
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.GetTimingAttributeDoubleRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.GetTimingAttributeDoubleResponse
+            ``value``: the rate [Hz].
+        """
         with self.lock:
             task = self._task(request.task)
             if request.attribute_raw == ATTR_SAMP_CLK_RATE:
@@ -380,7 +677,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def SetTimingAttributeDouble(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """The sample clock rate [Hz]."""
+        """
+        The sample clock rate [Hz].
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.SetTimingAttributeDoubleRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.SetTimingAttributeDoubleResponse
+            Empty: NI's answer of success.
+        """
         with self.lock:
             task = self._task(request.task)
             if request.attribute_raw != ATTR_SAMP_CLK_RATE:
@@ -391,7 +703,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def GetTimingAttributeString(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """The sample clock source."""
+        """
+        The sample clock source.
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.GetTimingAttributeStringRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.GetTimingAttributeStringResponse
+            ``value``: the source (``OnboardClock`` when none is set).
+        """
         with self.lock:
             task = self._task(request.task)
             if request.attribute_raw == ATTR_SAMP_CLK_SRC:
@@ -400,7 +727,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def SetTimingAttributeString(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """The sample clock source."""
+        """
+        The sample clock source.
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.SetTimingAttributeStringRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.SetTimingAttributeStringResponse
+            Empty: NI's answer of success.
+        """
         with self.lock:
             task = self._task(request.task)
             if request.attribute_raw != ATTR_SAMP_CLK_SRC:
@@ -412,7 +754,23 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def GetTimingAttributeInt32(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Sample mode (continuous) and timing type (sample clock)."""
+        """
+        Sample mode (continuous) and timing type (sample clock).
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.GetTimingAttributeInt32Request
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.GetTimingAttributeInt32Response
+            ``value_raw``: CONTINUOUS; SAMPLE_CLOCK, or 10390 (on demand) while the task has
+            no rate.
+        """
         with self.lock:
             task = self._task(request.task)
             if request.attribute_raw == ATTR_SAMP_QUANT_SAMP_MODE:
@@ -424,7 +782,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def GetTimingAttributeUInt64(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Samples per channel (the buffer size of a continuous task)."""
+        """
+        Samples per channel (the buffer size of a continuous task).
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.GetTimingAttributeUInt64Request
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.GetTimingAttributeUInt64Response
+            ``value``: the buffer size [samples per channel].
+        """
         with self.lock:
             task = self._task(request.task)
             if request.attribute_raw == ATTR_SAMP_QUANT_SAMP_PER_CHAN:
@@ -435,7 +808,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def SetBufferAttributeUInt32(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Input or output buffer size [samples per channel]."""
+        """
+        Input or output buffer size [samples per channel].
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.SetBufferAttributeUInt32Request
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.SetBufferAttributeUInt32Response
+            Empty: NI's answer of success.
+        """
         with self.lock:
             task = self._task(request.task)
             if request.attribute_raw not in (ATTR_INPUT_BUF_SIZE, ATTR_OUTPUT_BUF_SIZE):
@@ -446,7 +834,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def GetBufferAttributeUInt32(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Input or output buffer size [samples per channel]."""
+        """
+        Input or output buffer size [samples per channel].
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.GetBufferAttributeUInt32Request
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.GetBufferAttributeUInt32Response
+            ``value``: the buffer size [samples per channel].
+        """
         with self.lock:
             task = self._task(request.task)
             if request.attribute_raw not in (ATTR_INPUT_BUF_SIZE, ATTR_OUTPUT_BUF_SIZE):
@@ -456,7 +859,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def SetWriteAttributeInt32(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Regeneration mode."""
+        """
+        Regeneration mode.
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.SetWriteAttributeInt32Request
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.SetWriteAttributeInt32Response
+            Empty: NI's answer of success.
+        """
         with self.lock:
             task = self._task(request.task)
             value = request.value_raw
@@ -471,7 +889,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def GetWriteAttributeInt32(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Regeneration mode."""
+        """
+        Regeneration mode.
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.GetWriteAttributeInt32Request
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.GetWriteAttributeInt32Response
+            ``value_raw``: ALLOW_REGENERATION or DONT_ALLOW_REGENERATION.
+        """
         with self.lock:
             task = self._task(request.task)
             if request.attribute_raw != ATTR_WRITE_REGEN_MODE:
@@ -482,7 +915,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def GetWriteAttributeUInt64(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Samples generated so far; the write position."""
+        """
+        Samples generated so far; the write position.
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.GetWriteAttributeUInt64Request
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.GetWriteAttributeUInt64Response
+            ``value``: the samples generated or the write position [samples per channel].
+        """
         with self.lock:
             task = self._task(request.task)
             self.device.advance()
@@ -494,7 +942,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def GetWriteAttributeUInt32(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Space available in the output buffer [samples per channel]."""
+        """
+        Space available in the output buffer [samples per channel].
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.GetWriteAttributeUInt32Request
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.GetWriteAttributeUInt32Response
+            ``value``: the free space [samples per channel].
+        """
         with self.lock:
             task = self._task(request.task)
             self.device.advance()
@@ -505,7 +968,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def GetReadAttributeUInt32(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Samples available to read [per channel]."""
+        """
+        Samples available to read [per channel].
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.GetReadAttributeUInt32Request
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.GetReadAttributeUInt32Response
+            ``value``: the samples available [per channel]; 0 while the task is not running.
+        """
         with self.lock:
             task = self._task(request.task)
             if request.attribute_raw in (ATTR_READ_AVAIL_SAMP_PER_CHAN,
@@ -516,7 +994,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def GetReadAttributeUInt64(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Read position; samples acquired so far."""
+        """
+        Read position; samples acquired so far.
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.GetReadAttributeUInt64Request
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.GetReadAttributeUInt64Response
+            ``value``: the read position or the samples acquired [per channel].
+        """
         with self.lock:
             task = self._task(request.task)
             self.device.advance()
@@ -528,7 +1021,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def GetReadAttributeString(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """The channels a read returns (all of the task's)."""
+        """
+        The channels a read returns (all of the task's).
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.GetReadAttributeStringRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.GetReadAttributeStringResponse
+            ``value``: the channels' names, comma separated.
+        """
         with self.lock:
             task = self._task(request.task)
             if request.attribute_raw == ATTR_READ_CHANNELS_TO_READ:
@@ -543,6 +1051,20 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
         ``num_samps_per_chan`` -1 reads what is there; a timeout of -1 waits (at most
         :data:`MAX_WAIT_S`). Too few samples by the timeout: SAMPLES_NOT_YET_AVAILABLE.
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.ReadAnalogF64Request
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.ReadAnalogF64Response
+            ``read_array``: the samples [V], grouped by channel or interleaved as the
+            request's fill mode asks; ``samps_per_chan_read``.
         """
         want = int(request.num_samps_per_chan)
         timeout = float(request.timeout)
@@ -566,7 +1088,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def WriteAnalogF64(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Write samples to an AO task's buffer (on demand: applied at once)."""
+        """
+        Write samples to an AO task's buffer (on demand: applied at once).
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.WriteAnalogF64Request
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.WriteAnalogF64Response
+            ``samps_per_chan_written``.
+        """
         with self.lock:
             task = self._task(request.task)
             n = int(request.num_samps_per_chan)
@@ -587,7 +1124,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def CreateWatchdogTimerTaskEx(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """A watchdog timer task of the device (expiration states configured next)."""
+        """
+        A watchdog timer task of the device (expiration states configured next).
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.CreateWatchdogTimerTaskExRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.CreateWatchdogTimerTaskExResponse
+            ``task``: the session; ``new_session_initialized``: whether it was created.
+        """
         with self.lock:
             if request.device_name != self.device.name:
                 raise DaqmxError(codes.DEV_CANNOT_BE_ACCESSED, f'Device: {request.device_name}')
@@ -601,11 +1153,30 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def CfgWatchdogAOExpirStates(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Voltage expiration states of analog outputs."""
+        """
+        Voltage expiration states of analog outputs.
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.CfgWatchdogAOExpirStatesRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.CfgWatchdogAOExpirStatesResponse
+            Empty: NI's answer of success.
+        """
         with self.lock:
             dog = self.device.watchdog
             if dog is None or dog.task != request.task.name:
                 raise DaqmxError(codes.INVALID_TASK, f'Task Name: {request.task.name}')
+            if not self.device.ao_watchdog:
+                # a watchdog of digital lines only (an X Series device's: DIO and PFI)
+                raise DaqmxError(codes.ATTR_NOT_SUPPORTED,
+                                 f'Property: Watchdog.AO.ExpirState\nDevice: {self.device.name}')
             terms = expand(request.channel_names, self.device.name)
             states = list(request.expir_state_array)
             if len(states) != len(terms) or any(t != VOLTAGE for t in request.output_type_array):
@@ -620,7 +1191,22 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
 
     @_rpc
     def ControlWatchdogTask(self, request: Any, context: Any) -> Any:  # noqa: N802
-        """Reset the timer (feed it) or clear an expiration."""
+        """
+        Reset the timer (feed it) or clear an expiration.
+
+        Parameters
+        ----------
+        request : nidaqmx_pb2.ControlWatchdogTaskRequest
+            NI's request.
+        context : grpc.ServicerContext
+            The call; a DAQmx error aborts it with status UNKNOWN and the code in the trailing
+            metadata ``ni-error``.
+
+        Returns
+        -------
+        nidaqmx_pb2.ControlWatchdogTaskResponse
+            Empty: NI's answer of success.
+        """
         with self.lock:
             dog = self.device.watchdog
             if dog is None or dog.task != request.task.name:
