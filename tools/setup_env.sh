@@ -51,10 +51,22 @@ package_hash() {
      LC_ALL=C sort) | sha256sum | cut -c1-16
 }
 package_stamp="$venv/.emfc-package-$(package_hash)"
+# The test tools the dependencies bring (flake8 for test/test_flake8.py, mypy for
+# test/test_types.py): one gone from the venv reinstalls the dependencies.
+tools_missing() {
+  local tool
+  for tool in flake8 mypy; do
+    [ -x "$venv/bin/$tool" ] || { echo "$tool"; return 0; }
+  done
+  return 1
+}
 if [ "$check" = 1 ]; then
   stale=()
   [ -x "$venv/bin/python" ] || stale+=("no virtual environment at $venv")
   [ -f "$deps_stamp" ] || stale+=("dependencies not installed for this setup.py")
+  if missing_tool=$(tools_missing); then
+    stale+=("$missing_tool (a test tool) not installed")
+  fi
   [ -f "$package_stamp" ] && [ -x "$venv/bin/emfc-experiment" ] ||
     stale+=("emfc_ros not installed from the current sources")
   if [ -x "$here/../shared/ros2-jazzy-cli/install.sh" ] && ! ls "$venv"/.emfc-ros2cli-* >/dev/null 2>&1; then
@@ -71,13 +83,13 @@ if [ ! -x "$venv/bin/python" ]; then
   echo "setup_env: creating $venv" >&2
   "$py" -m venv "$venv"
 fi
-if [ ! -f "$deps_stamp" ]; then
+if [ ! -f "$deps_stamp" ] || tools_missing >/dev/null; then
   echo "setup_env: installing dependencies into $venv (first run takes a few minutes)" >&2
   # colcon needs setuptools<80 (design brief section 2).
   "$venv/bin/python" -m pip install -q 'setuptools<80' wheel 2>&1 | quiet_pip
   "$venv/bin/python" -m pip install -q "$here[plot,test,daqmx]" \
     'colcon-common-extensions' 'flake8>=6' 'flake8-quotes' 'flake8-import-order' \
-    'flake8-docstrings' 'pep8-naming' 2>&1 | quiet_pip
+    'flake8-docstrings' 'pep8-naming' 'mypy==2.4.*' 'types-PyYAML' 2>&1 | quiet_pip
   rm -f "$venv"/.emfc-deps-* "$venv"/.emfc-package-*
   touch "$deps_stamp"
 fi

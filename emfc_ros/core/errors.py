@@ -23,6 +23,13 @@ class ConfigError(EmfcError, ValueError):
     A configuration value is missing, of the wrong type or out of range.
 
     The message always names the offending key (dotted path) and what is allowed.
+
+    Parameters
+    ----------
+    key : str
+        The offending key, a dotted path (``'plant.sample_rate_Hz'``).
+    problem : str
+        What is wrong and what is allowed; the message is ``'<key>: <problem>'``.
     """
 
     def __init__(self, key: str, problem: str) -> None:

@@ -11,7 +11,7 @@ error class, :class:`JsonRefused` (a ``ValueError``), naming what was refused.
 from __future__ import annotations
 
 import json
-from typing import Any, Union
+from typing import Any, Iterable, Union
 
 from emfc_ros.core.errors import EmfcError
 
@@ -89,6 +89,7 @@ def nesting_depth(doc: Any, stop: int) -> int:
     stack = [(doc, 1)]
     while stack:
         value, depth = stack.pop()
+        children: Iterable[Any]
         if isinstance(value, dict):
             children = value.values()
         elif isinstance(value, list):

@@ -23,12 +23,12 @@ from __future__ import annotations
 
 import io
 from pathlib import Path
-from typing import Any, Union
+from typing import Any, Callable, Dict, List, NoReturn, Optional, Type, Union
 
 import yaml
 from yaml.composer import Composer
 from yaml.constructor import SafeConstructor
-from yaml.events import AliasEvent, CollectionStartEvent
+from yaml.events import AliasEvent, CollectionStartEvent, NodeEvent
 from yaml.parser import Parser as _PyYamlParser
 from yaml.reader import Reader as _Reader
 from yaml.resolver import Resolver
@@ -45,6 +45,7 @@ MAX_ALIAS_NODES = 100_000
 #: Nesting depth of collections allowed.
 MAX_DEPTH = 64
 
+_CParser: Optional[type]
 try:
     from yaml._yaml import CParser as _CParser  # libyaml: the scanner and parser in C
 except ImportError:  # pragma: no cover - PyYAML without libyaml
@@ -92,6 +93,10 @@ def _where(mark) -> str:
 class _GuardedComposer(Composer):
     """PyYAML's composer, counting aliases, expanded nodes and depth as it composes."""
 
+    #: The parser's, mixed in with the composer (:func:`_loader_class`); where the composer
+    #: peeks, the next event is a node's (an alias, a scalar, a collection's start).
+    peek_event: Callable[[], NodeEvent]
+
     def __init__(self) -> None:
         super().__init__()
         self.source = '<text>'
@@ -101,10 +106,10 @@ class _GuardedComposer(Composer):
         self._aliases = 0
         self._alias_nodes = 0
         self._depth = 0
-        self._children = []           # expanded size of the children composed so far
-        self._sizes = {}              # id(anchored node) -> expanded size (when complete)
+        self._children: List[int] = []     # expanded size of the children composed so far
+        self._sizes: Dict[int, int] = {}   # id(anchored node) -> expanded size (when complete)
 
-    def _refuse(self, mark, problem: str) -> None:
+    def _refuse(self, mark, problem: str) -> NoReturn:
         raise YamlRefused(self.source, f'{_where(mark)}YAML refused: {problem}')
 
     def _count(self, size: int) -> None:
@@ -151,7 +156,7 @@ class _GuardedComposer(Composer):
         return node
 
 
-def _loader_class(parser: type) -> type:
+def _loader_class(parser: Type[Any]) -> type:
     class _Loader(_GuardedComposer, parser, SafeConstructor, Resolver):
         """``yaml.SafeLoader`` (or ``CSafeLoader``'s parser) with the guarded composer."""
 

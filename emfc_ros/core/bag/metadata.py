@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import os
 from pathlib import Path
-from typing import Dict, List, Mapping, Optional, Sequence
+from typing import Any, Dict, List, Mapping, Optional, Sequence
 
 import yaml
 
@@ -92,7 +92,7 @@ class TopicStats:
 
 def build_metadata(files: Sequence[FileStats], topics: Sequence[TopicStats],
                    custom_data: Optional[Mapping[str, str]] = None,
-                   ros_distro: str = 'jazzy') -> Dict[str, object]:
+                   ros_distro: str = 'jazzy') -> Dict[str, Any]:
     """
     The content of ``metadata.yaml``.
 
@@ -190,7 +190,7 @@ def write_metadata(folder: Path, metadata: Mapping[str, object]) -> Path:
     return path
 
 
-def read_metadata(folder: Path) -> Dict[str, object]:
+def read_metadata(folder: Path) -> Dict[str, Any]:
     """
     Read the ``rosbag2_bagfile_information`` of a bag folder.
 

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Dict, Iterable, Iterator, List, Optional, Sequence, Tuple
+from typing import Any, Dict, Iterable, Iterator, List, Optional, Sequence, Tuple
 import warnings
 
 from mcap.records import Channel, Message
@@ -344,7 +344,9 @@ def _collect(source: Iterable[tuple], wanted: List[str], desc_topics: set,
     skipped = set()
     for topic, timestamp, raw in source:
         if topic in desc_topics:
-            text = typestore.deserialize_cdr(raw, DESCRIPTION_TYPE).data
+            # rosbags makes the message classes at run time: its type says object
+            message: Any = typestore.deserialize_cdr(raw, DESCRIPTION_TYPE)
+            text = message.data
             try:
                 descriptions.setdefault(topic[:-len(DESCRIPTION_SUFFIX)], []).append(
                     StreamDescription.from_json(text))
@@ -470,7 +472,8 @@ def read_messages(bag_path, topic: str) -> Iterator[Tuple[int, object]]:
         if not conns:
             raise KeyError(f'{bag_path} has no topic {topic!r}; topics are '
                            f'{sorted({c.topic for c in reader.connections})}')
-        last = (None, [])               # the last timestamp yielded, and its messages
+        # the last timestamp yielded, and its messages
+        last: Tuple[Optional[int], List[bytes]] = (None, [])
         try:
             for conn, timestamp, raw in _guarded(reader.messages(connections=conns)):
                 yield timestamp, reader.deserialize(raw, conn.msgtype)

@@ -21,7 +21,7 @@ import os
 from pathlib import Path
 import re
 import struct
-from typing import Dict, List, Optional, Tuple
+from typing import Dict, List, Optional, Set, Tuple
 
 from mcap.records import Channel, Message, Metadata, Schema
 from mcap.writer import CompressionType, Writer as McapWriter
@@ -203,7 +203,7 @@ def storage_files(bag: Path) -> List[str]:
     list of str
         File names in split order (``<name>_0.mcap``, ``<name>_1.mcap``, ...).
     """
-    names = set()
+    names: Set[str] = set()
     try:
         names.update(read_metadata(bag).get('relative_file_paths') or [])
     except BagFormatError:

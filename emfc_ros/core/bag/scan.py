@@ -198,14 +198,16 @@ class McapScan:
 
     def _damage_from_index(self, handle: BinaryIO, index: ChunkIndex,
                            topics: Dict[int, str], exc: Exception) -> ChunkDamage:
-        count: Optional[int] = 0
+        count: Optional[int] = None
+        total = 0
         for offset in index.message_index_offsets.values():
             try:
                 record = _read_at(handle, offset, 0)
-                count += len(record.records) if isinstance(record, MessageIndex) else 0
+                total += len(record.records) if isinstance(record, MessageIndex) else 0
             except Exception:  # an unreadable message index: the count is unknown
-                count = None
                 break
+        else:
+            count = total
         return ChunkDamage(
             self.name, index.chunk_start_offset, index.chunk_length, index.message_start_time,
             index.message_end_time, count,

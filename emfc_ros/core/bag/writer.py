@@ -25,7 +25,7 @@ from __future__ import annotations
 import dataclasses
 import os
 from pathlib import Path
-from typing import BinaryIO, Dict, List, Optional, Sequence
+from typing import Any, BinaryIO, Dict, List, Optional, Sequence
 
 from emfc_ros import __version__ as _package_version
 from emfc_ros.core.bag.errors import BagExistsError, BagWriteError
@@ -336,7 +336,7 @@ class BagWriter:
             except OSError:
                 pass
 
-    def metadata(self) -> Dict[str, object]:
+    def metadata(self) -> Dict[str, Any]:
         """
         The current ``metadata.yaml`` content.
 

@@ -438,15 +438,36 @@ class DeviceBackend(Protocol):
     intrusion_counters: Tuple[str, ...]
 
     def description_extra(self) -> Dict[str, Any]:
-        """What the back-end adds to the measurement description's ``extra``."""
+        """
+        What the back-end adds to the measurement description's ``extra``.
+
+        Returns
+        -------
+        dict
+            Keys and values to merge into ``extra`` (JSON-able).
+        """
         ...  # pragma: no cover
 
     def configure(self, config: DeviceConfig) -> None:
-        """Send the configuration (device idle or stopped)."""
+        """
+        Send the configuration (device idle or stopped).
+
+        Parameters
+        ----------
+        config : DeviceConfig
+            Sample rate, block size, inputs and outputs, watchdog timeout.
+        """
         ...  # pragma: no cover
 
     def start(self) -> int:
-        """Start sampling at index 0; returns the new epoch."""
+        """
+        Start sampling at index 0; returns the new epoch.
+
+        Returns
+        -------
+        int
+            The stream epoch of the blocks from now on.
+        """
         ...  # pragma: no cover
 
     def stop(self) -> None:
@@ -454,23 +475,68 @@ class DeviceBackend(Protocol):
         ...  # pragma: no cover
 
     def write_setpoints(self, first_sample_index: int, samples_V: np.ndarray) -> None:
-        """Queue setpoints ``(outputs, n)`` [V] for device samples from the given index."""
+        """
+        Queue setpoints ``(outputs, n)`` [V] for device samples from the given index.
+
+        Parameters
+        ----------
+        first_sample_index : int
+            Device sample index of ``samples_V[:, 0]``, >= 0.
+        samples_V : numpy.ndarray, shape (outputs, n)
+            Setpoints per output [V], finite.
+        """
         ...  # pragma: no cover
 
     def set_function_generator(self, specs: Sequence[GeneratorSpec]) -> None:
-        """Configure the on-device generator, one spec per output ('off': stream)."""
+        """
+        Configure the on-device generator, one spec per output ('off': stream).
+
+        Parameters
+        ----------
+        specs : sequence of GeneratorSpec
+            One per output, in the outputs' order.
+        """
         ...  # pragma: no cover
 
     def read_block(self, timeout_s: float = 1.0) -> Optional[Block]:
-        """Next measurement block in SI units, or None if none arrived in time."""
+        """
+        Next measurement block in SI units, or None if none arrived in time.
+
+        Parameters
+        ----------
+        timeout_s : float
+            Longest wait [s] (host-paced back-ends do not wait).
+
+        Returns
+        -------
+        Block or None
+            The block, a row per input of the configuration in use (``recorded_config``
+            for a recording).
+        """
         ...  # pragma: no cover
 
     def health(self) -> Dict[str, int]:
-        """Health counters (see ``docs/device_protocol.md``)."""
+        """
+        Health counters (see ``docs/device_protocol.md``).
+
+        Returns
+        -------
+        dict of str to int
+            Counter name to value.
+        """
         ...  # pragma: no cover
 
     def take_faults(self) -> List[Tuple[str, Optional[int], str, bool]]:
-        """Faults the back-end found itself since the last call, each once (kind, index...)."""
+        """
+        Faults the back-end found itself since the last call, each once (kind, index...).
+
+        Returns
+        -------
+        list of tuple
+            ``(kind, device_index, message, exact)`` each: a kind of
+            :data:`emfc_ros.core.device.faults.KINDS`, the first device sample affected (or None),
+            what the back-end said, whether the index is exact.
+        """
         ...  # pragma: no cover
 
     def close(self) -> None:

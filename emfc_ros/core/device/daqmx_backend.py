@@ -57,17 +57,39 @@ ReportedFault = Tuple[str, Optional[int], str, bool]
 
 
 def default_terminals() -> Tuple[str, ...]:
-    """The analog inputs of the default inputs, in their order (``docs/daqmx.md``)."""
+    """
+    The analog inputs of the default inputs, in their order (``docs/daqmx.md``).
+
+    Returns
+    -------
+    tuple of str
+        Terminal names (``'ai0'``, ...).
+    """
     return tuple(w.terminal for w in DEFAULT_AI_WIRING)
 
 
 def default_units_per_V() -> Tuple[float, ...]:
-    """SI units per volt of the default inputs' signal conditioning, in their order."""
+    """
+    SI units per volt of the default inputs' signal conditioning, in their order.
+
+    Returns
+    -------
+    tuple of float
+        Units per volt (A/V for the current monitors, m/V for the position output, 1 for
+        voltages).
+    """
     return tuple(w.units_per_V for w in DEFAULT_AI_WIRING)
 
 
 def default_ranges_V() -> Tuple[float, ...]:
-    """The input ranges of the default inputs (+/- V), in their order."""
+    """
+    The input ranges of the default inputs (+/- V), in their order.
+
+    Returns
+    -------
+    tuple of float
+        The ranges [V].
+    """
     return tuple(w.range_V for w in DEFAULT_AI_WIRING)
 
 
@@ -499,6 +521,13 @@ class DaqmxBackend:
         """
         Queue setpoints ``(outputs, n)`` [V] for device samples from ``first_sample_index``.
 
+        Parameters
+        ----------
+        first_sample_index : int
+            Device sample index of ``samples_V[:, 0]``, >= 0.
+        samples_V : numpy.ndarray, shape (outputs, n)
+            Setpoints per output [V], finite; clipped to the outputs' limits.
+
         Raises
         ------
         DeviceError
@@ -528,6 +557,11 @@ class DaqmxBackend:
     def set_function_generator(self, specs: Sequence[GeneratorSpec]) -> None:
         """
         Refuse an active generator: an NI-DAQmx device has no function generator here.
+
+        Parameters
+        ----------
+        specs : sequence of GeneratorSpec
+            One per output; all must be ``'off'``.
 
         Raises
         ------

@@ -28,6 +28,13 @@ class DeviceRefusedError(DeviceError):
     """
     The device answered a request with an error status.
 
+    Parameters
+    ----------
+    status : int
+        The protocol status code.
+    message : str
+        What the device said.
+
     Attributes
     ----------
     status : int
@@ -45,6 +52,13 @@ class AuthenticationError(ProtocolError):
 
     Missing tag while a key is configured, a tag without a key, or a wrong tag. The header
     fields (when the header was intact) are kept so that a device can answer the request.
+
+    Parameters
+    ----------
+    message : str
+        What does not match.
+    header : tuple or None
+        The header fields after magic and version, or None when the header is not intact.
 
     Attributes
     ----------

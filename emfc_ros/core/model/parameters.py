@@ -9,7 +9,8 @@ with the unit reading documented in ``docs/model.md``. The same values ship in
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, replace
-from typing import Any, Mapping, Optional
+from pathlib import Path
+from typing import Any, Dict, Mapping, Optional, Union
 
 import numpy as np
 import yaml
@@ -264,7 +265,7 @@ class BalanceParameters:
         return out
 
     @classmethod
-    def load_yaml(cls, path: str) -> 'BalanceParameters':
+    def load_yaml(cls, path: Union[str, Path]) -> 'BalanceParameters':
         """
         Load the parameters from a YAML file.
 
@@ -273,7 +274,7 @@ class BalanceParameters:
 
         Parameters
         ----------
-        path : str
+        path : str or pathlib.Path
             File name.
 
         Returns
@@ -350,7 +351,7 @@ def _spec_text(meta: Mapping[str, Any]) -> str:
 def _flat_from_mapping(klass: Any, cfg: Mapping[str, Any], path: str, base: Any) -> Any:
     names = [f.name for f in fields(klass)]
     reject_unknown(cfg, names, path)
-    values = {}
+    values: Dict[str, float] = {}
     for f in fields(klass):
         meta = f.metadata
         kwargs: dict = {}

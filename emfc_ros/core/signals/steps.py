@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Sequence, Union
 
 import numpy as np
 
@@ -64,7 +64,8 @@ class Steps:
         Sample rate.
     """
 
-    def __init__(self, times_s: Sequence[float], levels_V: Sequence[float],
+    def __init__(self, times_s: Union[Sequence[float], np.ndarray],
+                 levels_V: Union[Sequence[float], np.ndarray],
                  sample_rate_Hz: float = 10000.0) -> None:
         self.sample_rate_Hz = check_rate(sample_rate_Hz)
         times = np.asarray(times_s, dtype=np.float64)

@@ -134,7 +134,21 @@ except ImportError:     # pragma: no cover - numba is optional
 
 @_jitable
 def characteristic(par, k):
-    """Return the coefficients of characteristic ``k`` (AMP_COIL .. LOAD_CHANGER) in ``par``."""
+    """
+    Return the coefficients of characteristic ``k`` (AMP_COIL .. LOAD_CHANGER) in ``par``.
+
+    Parameters
+    ----------
+    par : ndarray
+        The packed parameter vector (:func:`chain_block`).
+    k : int
+        Index of the characteristic in CHARACTERISTICS.
+
+    Returns
+    -------
+    ndarray
+        A view of its coefficients in ascending powers (units in CHARACTERISTICS).
+    """
     start = N_PAR
     for j in range(k):
         start += int(par[COEFFS + j])
@@ -143,7 +157,21 @@ def characteristic(par, k):
 
 @_jitable
 def horner(coeffs, v):
-    """Return ``sum_k coeffs[k] v**k`` by Horner's scheme."""
+    """
+    Return ``sum_k coeffs[k] v**k`` by Horner's scheme.
+
+    Parameters
+    ----------
+    coeffs : ndarray
+        Coefficients in ascending powers.
+    v : float
+        The argument.
+
+    Returns
+    -------
+    float
+        The polynomial's value (0.0 for no coefficients).
+    """
     acc = 0.0
     for k in range(len(coeffs) - 1, -1, -1):
         acc = acc * v + coeffs[k]
@@ -152,7 +180,21 @@ def horner(coeffs, v):
 
 @_jitable
 def horner_d(coeffs, v):
-    """Return the derivative of ``horner(coeffs, v)`` with respect to ``v``."""
+    """
+    Return the derivative of ``horner(coeffs, v)`` with respect to ``v``.
+
+    Parameters
+    ----------
+    coeffs : ndarray
+        Coefficients in ascending powers.
+    v : float
+        The argument.
+
+    Returns
+    -------
+    float
+        ``sum_k k coeffs[k] v**(k - 1)``.
+    """
     acc = 0.0
     for k in range(len(coeffs) - 1, 0, -1):
         acc = acc * v + k * coeffs[k]
@@ -161,13 +203,39 @@ def horner_d(coeffs, v):
 
 @_jitable
 def sin_small(v, v2):
-    """Return the sine of a small angle ``v`` [rad] (``v2 = v**2``)."""
+    """
+    Return the sine of a small angle ``v`` [rad] (``v2 = v**2``).
+
+    Parameters
+    ----------
+    v : float
+        The angle [rad], ``|v|`` below SMALL_ANGLE_RAD for full accuracy.
+    v2 : float
+        ``v**2`` [rad**2].
+
+    Returns
+    -------
+    float
+        The Taylor polynomial to ``v**5``.
+    """
     return v + v * v2 * (-1.0 / 6.0 + v2 * (1.0 / 120.0))
 
 
 @_jitable
 def cos_small(v2):
-    """Return the cosine of a small angle whose square is ``v2`` [rad**2]."""
+    """
+    Return the cosine of a small angle whose square is ``v2`` [rad**2].
+
+    Parameters
+    ----------
+    v2 : float
+        The angle squared [rad**2].
+
+    Returns
+    -------
+    float
+        The Taylor polynomial to ``v**4``.
+    """
     return 1.0 + v2 * (-0.5 + v2 * (1.0 / 24.0))
 
 
@@ -178,6 +246,26 @@ def convert(v, lsb, lo, hi, span, quantise):
 
     Returns ``(code * lsb, code)``; without quantisation only the clamp to ``+/- span`` (and
     code 0).
+
+    Parameters
+    ----------
+    v : float
+        The converter's input [V].
+    lsb : float
+        Volts per code [V].
+    lo, hi : float
+        Lowest and highest code.
+    span : float
+        The converter's range [V], the clamp without quantisation.
+    quantise : bool
+        Round to codes; otherwise only clamp.
+
+    Returns
+    -------
+    value : float
+        The converted voltage [V].
+    code : float
+        Its code (0.0 without quantisation).
     """
     if quantise:
         code = float(math.floor(min(max(v / lsb, lo - 1.0), hi + 1.0) + 0.5))
@@ -191,7 +279,30 @@ def convert(v, lsb, lo, hi, span, quantise):
 
 @_jitable
 def sensor_inverse(v, code, quantise, sensor, sensor_table, adc_lo):
-    """Return the lever-end position [m] of a sensor voltage ``v`` [V] (ADC ``code``)."""
+    """
+    Return the lever-end position [m] of a sensor voltage ``v`` [V] (ADC ``code``).
+
+    Parameters
+    ----------
+    v : float
+        The sensor voltage [V] (used without quantisation).
+    code : float
+        Its ADC code (used with quantisation).
+    quantise : bool
+        Look the code up in ``sensor_table``; otherwise solve the characteristic by Newton's
+        method.
+    sensor : ndarray
+        The sensor characteristic in ascending powers [V/m**k], monotonic over the range.
+    sensor_table : ndarray
+        The position at every ADC code [m] (entry ``code - adc_lo``).
+    adc_lo : float
+        The ADC's lowest code.
+
+    Returns
+    -------
+    float
+        The position [m].
+    """
     if quantise:
         return sensor_table[int(code - adc_lo)]
     # Newton from the linear term; the characteristic is monotonic over the range.
@@ -206,7 +317,22 @@ def sensor_inverse(v, code, quantise, sensor, sensor_table, adc_lo):
 
 @_jitable
 def trig(q1, q2, taylor):
-    """Return sin and cos of ``q1``, ``q2`` and ``q2 - q1``: short polynomials or libm."""
+    """
+    Return sin and cos of ``q1``, ``q2`` and ``q2 - q1``: short polynomials or libm.
+
+    Parameters
+    ----------
+    q1, q2 : float
+        Beam angles [rad].
+    taylor : bool
+        Use the Taylor polynomials (accurate while ``|q1| + |q2| < SMALL_ANGLE_RAD``), else
+        ``math.sin`` and ``math.cos``.
+
+    Returns
+    -------
+    tuple of float
+        ``(sin q1, cos q1, sin q2, cos q2, sin(q2 - q1), cos(q2 - q1))``.
+    """
     if taylor:
         v1 = q1 * q1
         v2 = q2 * q2
@@ -220,7 +346,21 @@ def trig(q1, q2, taylor):
 
 @_jitable
 def splitmix(counter, noise_key):
-    """Return the SplitMix64 output at ``counter`` of the stream ``noise_key``."""
+    """
+    Return the SplitMix64 output at ``counter`` of the stream ``noise_key``.
+
+    Parameters
+    ----------
+    counter : numpy.uint64
+        Position in the stream.
+    noise_key : numpy.uint64
+        Key of the stream (:func:`emfc_ros.core.sim.noise.noise_key`).
+
+    Returns
+    -------
+    numpy.uint64
+        The 64 hashed bits.
+    """
     z = noise_key + counter * GOLDEN
     z = (z ^ (z >> SHIFT30)) * MIX1
     z = (z ^ (z >> SHIFT27)) * MIX2
@@ -229,7 +369,19 @@ def splitmix(counter, noise_key):
 
 @_jitable
 def normal_central(p):
-    """Return Acklam's inverse normal CDF for ``P_LOW <= p <= 1 - P_LOW``."""
+    """
+    Return Acklam's inverse normal CDF for ``P_LOW <= p <= 1 - P_LOW``.
+
+    Parameters
+    ----------
+    p : float
+        A probability in that range.
+
+    Returns
+    -------
+    float
+        The standard normal quantile of ``p`` (relative error 1.2e-9).
+    """
     q = p - 0.5
     r = q * q
     return ((((((A0 * r + A1) * r + A2) * r + A3) * r + A4) * r + A5) * q
@@ -238,7 +390,19 @@ def normal_central(p):
 
 @_jitable
 def normal_tail(p):
-    """Return the same outside, ``p < P_LOW`` or ``p > 1 - P_LOW`` (relative error 1.2e-9)."""
+    """
+    Return the same outside, ``p < P_LOW`` or ``p > 1 - P_LOW`` (relative error 1.2e-9).
+
+    Parameters
+    ----------
+    p : float
+        A probability in (0, 1) outside the central range.
+
+    Returns
+    -------
+    float
+        The standard normal quantile of ``p``.
+    """
     q = math.sqrt(-2.0 * math.log(min(p, 1.0 - p)))
     v = ((((((C0 * q + C1) * q + C2) * q + C3) * q + C4) * q + C5)
          / ((((D0 * q + D1) * q + D2) * q + D3) * q + 1.0))
@@ -255,6 +419,24 @@ def normals(counter0, m, zz, p_tmp, bits, tails, noise_key):
     function for all; then the flat indices of the tail values (about 5 %) are gathered into
     ``tails`` without a branch and only those are recomputed (a loop with the tail function
     under a branch would be vectorised by computing it, with its logarithm, for every value).
+
+    Parameters
+    ----------
+    counter0 : numpy.uint64
+        Counter of ``zz[0, 0]``.
+    m : int
+        Columns to fill, at most ``zz.shape[1]``.
+    zz : ndarray, shape (3, width)
+        Filled in its first ``m`` columns: one row per noise stream (sensor, coil current,
+        load-changer current).
+    p_tmp : ndarray, shape (3, width)
+        Scratch, the probabilities.
+    bits : ndarray of numpy.uint64, shape (>= 3 m,)
+        Scratch, the hashes.
+    tails : ndarray of numpy.int64, shape (>= 3 m,)
+        Scratch, the flat indices of the tail values.
+    noise_key : numpy.uint64
+        Key of the noise streams.
     """
     for k in range(3 * m):
         bits[k] = splitmix(counter0 + np.uint64(k), noise_key) >> SHIFT11
@@ -283,13 +465,47 @@ def normals(counter0, m, zz, p_tmp, bits, tails, noise_key):
 
 @_jitable
 def current(coeffs, v, n_i, limit):
-    """Return the amplifier current ``clip(I(v) + n_i, +/- limit)`` [A]."""
+    """
+    Return the amplifier current ``clip(I(v) + n_i, +/- limit)`` [A].
+
+    Parameters
+    ----------
+    coeffs : ndarray
+        The amplifier characteristic in ascending powers [A/V**k].
+    v : float
+        The amplifier's input [V].
+    n_i : float
+        The current noise of the sample [A].
+    limit : float
+        The amplifier's current limit [A].
+
+    Returns
+    -------
+    float
+        The current [A].
+    """
     return min(max(horner(coeffs, v) + n_i, -limit), limit)
 
 
 @_jitable
 def code_of(v, lsb, lo, hi):
-    """Return the converter's code: nearest, clamped (branch-free, so that loops vectorise)."""
+    """
+    Return the converter's code: nearest, clamped (branch-free, so that loops vectorise).
+
+    Parameters
+    ----------
+    v : float
+        The converter's input [V].
+    lsb : float
+        Volts per code [V].
+    lo, hi : float
+        Lowest and highest code.
+
+    Returns
+    -------
+    float
+        The code, an integer value in ``[lo, hi]``.
+    """
     return min(max(np.floor(min(max(v / lsb, lo - 1.0), hi + 1.0) + 0.5), lo), hi)
 
 

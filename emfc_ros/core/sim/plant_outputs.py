@@ -16,7 +16,19 @@ from emfc_ros.core.sim.resolution import simulator_resolution
 
 
 def locked(method):
-    """Run a session method under the session's own (re-entrant) lock."""
+    """
+    Run a session method under the session's own (re-entrant) lock.
+
+    Parameters
+    ----------
+    method : callable
+        A method of the session (``self._mutex`` is its lock).
+
+    Returns
+    -------
+    callable
+        The method wrapped: it holds the lock while it runs.
+    """
     @functools.wraps(method)
     def call(self, *args, **kwargs):
         with self._mutex:

@@ -165,7 +165,15 @@ class WeighingCalibration:
         """
         Net mass ``S (F - F0) - tare`` [kg] of a compensation force [N], vectorised.
 
-        Parameters and return as :meth:`gross_mass_kg`, with the tare subtracted.
+        Parameters
+        ----------
+        force_N : float or array_like
+            Compensation force [N].
+
+        Returns
+        -------
+        float or ndarray
+            Net mass [kg]: :meth:`gross_mass_kg` less the tare.
         """
         return self.gross_mass_kg(force_N) - self.tare_kg
 

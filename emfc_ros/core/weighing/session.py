@@ -48,7 +48,14 @@ class Action:
     mass_kg: float = 0.0
 
     def describe(self) -> str:
-        """A short text for messages."""
+        """
+        A short text for messages.
+
+        Returns
+        -------
+        str
+            What and from when, ``'adjust with 100 g (from 2 s)'``.
+        """
         what = f'adjust with {self.mass_kg * 1e3:g} g' if self.kind == 'adjust' else self.kind
         return f'{what} (from {self.time_s:g} s)'
 
