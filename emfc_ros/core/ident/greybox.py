@@ -30,7 +30,7 @@ Optimisers:
   :data:`GN_STALL` relative; it gives up after :data:`GN_MAX_STEPS` steps. With
   ``workers > 1`` the finite differences run in threads (``simulate`` must be thread-safe).
   On the shipped trajectory: 6 to 8 simulations against ``least_squares``' 27 and the 16 of
-  its covariance (``docs/identification.md`` section 5).
+  its covariance (``docs/identification_results.md``, "Compute time").
 * ``'pattern_search'``: :func:`~emfc_ros.core.ident.pattern_search.pattern_search` (MATLAB
   defaults) on the cost, in the scaled variables ``x_i = theta_i / scale_i`` so a mesh size of
   1 is a change of one scale (by default the magnitude of the initial value) in every
