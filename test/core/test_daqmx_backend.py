@@ -366,3 +366,24 @@ def test_a_device_whose_watchdog_covers_no_analog_output_runs_without_one_and_sa
             refused.close()
     finally:
         emu.close()
+
+
+def test_a_server_gone_while_writing_is_a_fault_not_a_dead_thread():
+    # The emulator killed between a read and the top-up that follows it (CI saw the I/O
+    # thread die there with the client's RpcError and a traceback): the write's error is
+    # a latched device_lost naming what failed.
+    emu = Emulator()
+    backend = _started(emu.address)
+    try:
+        _blocks(backend, 2)
+        with backend._io:
+            emu.proc.kill()
+            emu.proc.wait(10)
+            backend._top_up(backend._read_index + 20000)
+        faults = backend.take_faults()
+        assert faults and faults[0][0] == 'device_lost', faults
+        assert faults[0][2].startswith('writing the outputs: the NI-DAQmx client failed')
+        assert backend._ao_failed
+    finally:
+        backend.close()
+        emu.close()

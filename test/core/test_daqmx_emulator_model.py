@@ -182,3 +182,24 @@ def test_physical_channel_lists_expand_as_ni_writes_them():
     assert list(expand('/Dev1/ao1:0', 'Dev1')) == ['ao1', 'ao0']
     with pytest.raises(DaqmxError):
         expand('Dev2/ai0', 'Dev1')
+
+
+def test_the_output_buffer_holds_what_is_written_and_not_yet_generated():
+    dev, clock, ai, ao = make(buffer=100)
+    assert dev.space_available(ao) == 100
+    dev.write(ao, np.ones((2, 100)))
+    assert dev.space_available(ao) == 0
+    with pytest.raises(DaqmxError) as err:          # does not fit: nothing written
+        dev.write(ao, np.ones((2, 1)))
+    assert err.value.code == codes.SAMPLES_CAN_NOT_YET_BE_WRITTEN
+    assert dev.space_available(ao) == 0
+    dev.start(ao)
+    dev.start(ai)
+    clock.t += 0.03                                 # 30 ticks generated
+    assert dev.space_available(ao) == 30
+    first = dev.read(ai, 30)
+    dev.write(ao, np.full((2, 30), 2.0))
+    clock.t += 0.1                                  # the last of them generated
+    got = np.hstack([first, dev.read(ai, 100)])
+    np.testing.assert_allclose(got[0, :100], 1.0, atol=resolution_V(10.0))
+    np.testing.assert_allclose(got[0, 100:], 2.0, atol=resolution_V(10.0))

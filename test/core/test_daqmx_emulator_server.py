@@ -196,3 +196,33 @@ def test_the_console_script_refuses_a_non_loopback_address():
                             timeout=60)
     assert result.returncode == 2
     assert '--allow-remote' in result.stderr or 'loopback' in result.stderr
+
+
+def test_a_write_that_does_not_fit_the_output_buffer_waits_for_space_or_is_refused(address):
+    # NI's semantics with regeneration off: the buffer holds what is written and not yet
+    # generated; a write waits up to its timeout for space, then fails with -200292 and
+    # writes nothing.
+    addr, _ = address
+    ai, ao = _sync_tasks(addr, 'space')
+    with ai, ao:
+        ao.out_stream.output_buf_size = 2000
+        rng = np.random.default_rng(5)
+        wave = np.vstack([rng.uniform(-0.5, 0.5, 4000), np.zeros(4000)])
+        assert ao.write(wave[:, :2000]) == 2000
+        assert ao.out_stream.space_avail == 0
+        with pytest.raises(nidaqmx.DaqError) as err:      # the task is not running
+            ao.write(wave[:, 2000:2001], timeout=0.5)
+        assert err.value.error_code == codes.SAMPLES_CAN_NOT_YET_BE_WRITTEN
+        ao.start()
+        ai.start()
+        # 2000 more than the buffer takes now: they go in as the device generates
+        assert ao.write(wave[:, 2000:], timeout=5.0) == 2000
+        # 0.5 s of samples (more than the whole buffer) in a 0.02 s timeout: refused, with
+        # what fitted written
+        with pytest.raises(nidaqmx.DaqError) as err:
+            ao.write(np.zeros((2, 5000)), timeout=0.02)
+        assert err.value.error_code == codes.SAMPLES_CAN_NOT_YET_BE_WRITTEN
+        assert 'Samples written:' in str(err.value)
+        data = np.array(ai.read(number_of_samples_per_channel=4000, timeout=5.0))
+        # every sample written, in order, at its tick (ao0 looped back on ai3)
+        np.testing.assert_allclose(data[3], wave[0], atol=STEP / 2 + 1e-12)

@@ -602,7 +602,12 @@ class DaqmxBackend:
             with self._io:
                 if not self._running or self._ai_failed:
                     return
-                self._read_chunk()
+                try:
+                    self._read_chunk()
+                except Exception as exc:      # noqa: B902 - never end silently: a fault
+                    self._ai_failed = True
+                    self._report_error(exc, 'the I/O thread')
+                    return
 
     def _read_chunk(self) -> None:
         """One read: what is there (at least one chunk, waiting for it); complete blocks."""
@@ -667,6 +672,9 @@ class DaqmxBackend:
             underflow = exc.error_code in (codes.GEN_STOPPED_TO_PREVENT_REGEN_OF_OLD_SAMPLES,
                                            codes.OUTPUT_FIFO_UNDERFLOW_2)
             self._report_error(exc, 'writing the outputs', committed if underflow else None)
+            self._fail_outputs()
+        except Exception as exc:          # noqa: B902 - the server or the link is gone
+            self._report_error(exc, 'writing the outputs')
             self._fail_outputs()
 
     def _fail_outputs(self) -> None:

@@ -45,6 +45,8 @@ INVALID_ROUTING_SOURCE_TERMINAL_NAME = -200040
 RESOURCE_ALREADY_RESERVED = -200022
 #: A property the device does not have.
 ATTR_NOT_SUPPORTED = -200197
+#: AO: the samples do not fit in the buffer (yet: it frees up as the device generates).
+SAMPLES_CAN_NOT_YET_BE_WRITTEN = -200292
 
 #: NI's texts (the first sentence or two of the driver's message).
 TEXTS: Dict[int, str] = {
@@ -82,6 +84,9 @@ TEXTS: Dict[int, str] = {
                                'it contains channels of a different type.'),
     INVALID_ROUTING_SOURCE_TERMINAL_NAME: 'Source terminal to be routed could not be found '
                                           'on the device.',
+    SAMPLES_CAN_NOT_YET_BE_WRITTEN: (
+        'Some or all of the samples to write could not be written to the buffer yet. More '
+        'space will free up as samples currently in the buffer are generated.'),
     ATTR_NOT_SUPPORTED: 'Specified property is not supported by the device or is not '
                         'applicable to the task.',
     RESOURCE_ALREADY_RESERVED: 'The specified resource is reserved. The operation could not '

@@ -11,7 +11,11 @@ hardware does); with regeneration allowed the samples written repeat cyclically.
 on its own onboard clock with a start trigger ``/<dev>/ai/StartTrigger`` starts at the AI
 task's first tick, so at the same rate its sample ``k`` is the AI task's too. AI samples are
 quantised to the channel's range (16 bits) and kept in a buffer of the configured size: when
-the host reads too late the acquisition stops with ``SAMPLES_NO_LONGER_AVAILABLE``.
+the host reads too late the acquisition stops with ``SAMPLES_NO_LONGER_AVAILABLE``. An AO
+task's buffer (regeneration off) holds at most its configured size of samples written and
+not yet generated: a write that does not fit is refused with
+``SAMPLES_CAN_NOT_YET_BE_WRITTEN`` and writes nothing (the server waits for space up to the
+write's timeout first, as the driver does).
 
 The watchdog timer (a watchdog task) expires when it is not fed within its timeout: from the
 expiry on, every output is at its expiration state and every running AO task has failed with
@@ -617,6 +621,27 @@ class Device:
         task.consumed += n
         return self._pop(task, n)
 
+    def space_available(self, task: Task) -> int:
+        """
+        Samples per channel an AO task's buffer takes now (NI's ``space_avail``).
+
+        Parameters
+        ----------
+        task : Task
+            An AO task.
+
+        Returns
+        -------
+        int
+            Its buffer size less the samples written and not yet generated; unbounded (a
+            large number) on demand or with regeneration (the buffer is then what was
+            written).
+        """
+        if not task.rate_Hz or task.regeneration:
+            return 1 << 62
+        self.advance()
+        return max(task.buffer_samples - (task.consumed - task.produced), 0)
+
     def write(self, task: Task, samples_V: np.ndarray) -> int:
         """
         Append samples ``(channels, n)`` [V] to an AO task's buffer; returns n written.
@@ -636,7 +661,9 @@ class Device:
         Raises
         ------
         DaqmxError
-            The task's latched error (an underflow, an expired watchdog).
+            The task's latched error (an underflow, an expired watchdog), or
+            ``SAMPLES_CAN_NOT_YET_BE_WRITTEN`` when the samples do not fit in the buffer
+            (nothing written).
         """
         self._check_present()
         self.advance()
@@ -646,6 +673,11 @@ class Device:
             raise DaqmxError(codes.WRITE_FAILED_BECAUSE_WATCHDOG_EXPIRED,
                              f'Task Name: {task.name}')
         data = np.asarray(samples_V, dtype=np.float64).reshape(len(task.channels), -1)
+        space = self.space_available(task)
+        if data.shape[1] > space:
+            raise DaqmxError(codes.SAMPLES_CAN_NOT_YET_BE_WRITTEN,
+                             f'Task Name: {task.name}\nSamples to write: {data.shape[1]}\n'
+                             f'Space available in buffer: {space}')
         lo = np.array([c.min_V for c in task.channels])[:, None]
         hi = np.array([c.max_V for c in task.channels])[:, None]
         data = np.clip(data, lo, hi)

@@ -77,6 +77,8 @@ WDT_RESET_TIMER, WDT_CLEAR_EXPIRATION = 0, 1
 AUTO, INIT_NEW, ATTACH = 0, 1, 2
 #: Longest a read waits for samples, whatever timeout the client asks for [s].
 MAX_WAIT_S = 600.0
+#: Longest a write waits for buffer space, whatever timeout the client asks for [s].
+MAX_WRITE_WAIT_S = 600.0
 
 
 def _rpc(method: Callable) -> Callable:
@@ -960,10 +962,9 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
         """
         with self.lock:
             task = self._task(request.task)
-            self.device.advance()
             if request.attribute_raw == ATTR_WRITE_SPACE_AVAIL:
-                free = task.buffer_samples - max(0, task.consumed - task.produced)
-                return pb.GetWriteAttributeUInt32Response(value=max(0, free))
+                space = min(self.device.space_available(task), 0xFFFFFFFF)
+                return pb.GetWriteAttributeUInt32Response(value=space)
             raise DaqmxError(codes.ATTR_NOT_SUPPORTED, f'Property: 0x{request.attribute_raw:X}')
 
     @_rpc
@@ -1103,22 +1104,43 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
         -------
         nidaqmx_pb2.WriteAnalogF64Response
             ``samps_per_chan_written``.
+
+        Samples that do not fit in the buffer go in as the running task frees space (the
+        lock released in between), for at most the request's ``timeout`` [s] (-1: at most
+        :data:`MAX_WRITE_WAIT_S`); then NI's ``SAMPLES_CAN_NOT_YET_BE_WRITTEN``, with what
+        was written staying written, as the driver does.
         """
-        with self.lock:
-            task = self._task(request.task)
-            n = int(request.num_samps_per_chan)
-            data = np.asarray(request.write_array, dtype=np.float64)
-            chans = len(task.channels)
-            if data.size != n * chans:
-                raise DaqmxError(codes.INVALID_ATTRIBUTE_VALUE,
-                                 f'Task Name: {task.name}\nSamples per channel: {n}\n'
-                                 f'Values written: {data.size} for {chans} channels')
-            values = data.reshape(chans, n) if request.data_layout_raw == GROUP_BY_CHANNEL \
-                else data.reshape(n, chans).T
-            written = self.device.write(task, values)
-            if request.auto_start and not task.running and not task.armed:
-                self.device.start(task)
-            return pb.WriteAnalogF64Response(samps_per_chan_written=written)
+        timeout = float(request.timeout)
+        end = time.monotonic() + (MAX_WRITE_WAIT_S if timeout < 0 else timeout)
+        done = 0
+        while True:
+            with self.lock:
+                task = self._task(request.task)
+                n = int(request.num_samps_per_chan)
+                data = np.asarray(request.write_array, dtype=np.float64)
+                chans = len(task.channels)
+                if data.size != n * chans:
+                    raise DaqmxError(codes.INVALID_ATTRIBUTE_VALUE,
+                                     f'Task Name: {task.name}\nSamples per channel: {n}\n'
+                                     f'Values written: {data.size} for {chans} channels')
+                values = data.reshape(chans, n) if request.data_layout_raw == GROUP_BY_CHANNEL \
+                    else data.reshape(n, chans).T
+                take = min(self.device.space_available(task), n - done)
+                if take > 0 or n == 0:
+                    done += self.device.write(task, values[:, done:done + take])
+                if request.auto_start and not task.running and not task.armed:
+                    self.device.start(task)
+                if done == n:
+                    return pb.WriteAnalogF64Response(samps_per_chan_written=done)
+                left = end - time.monotonic()
+                if left <= 0 or not task.running:
+                    raise DaqmxError(codes.SAMPLES_CAN_NOT_YET_BE_WRITTEN,
+                                     f'Task Name: {task.name}\nSamples to write: {n}\n'
+                                     f'Samples written: {done}')
+                # a quarter of the buffer (or what is left) frees up in this time
+                wait = min(max(min(n - done, task.buffer_samples // 4) / task.rate_Hz, 1e-3),
+                           left)
+            time.sleep(wait)
 
     # -- the watchdog timer -------------------------------------------------------------------
 
