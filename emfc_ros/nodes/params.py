@@ -293,21 +293,11 @@ def _reason(name: str, value: Any, default: Any, desc: ParameterDescriptor,
     """The message for a refused start-up value."""
     if isinstance(exc, InvalidParameterTypeException) or \
             type(value) is not type(default):
-        why = f'must be of type {_type_name(default)}'
+        why = f'must be of type {type_name(default)}'
     else:
         why = f'must be {describe_limits(desc)}'
     return (f'parameter {name}: start-up value {value!r} refused: it {why}; the parameter '
             f'keeps its default {default!r}')
-
-
-def _type_name(default: Any) -> str:
-    """The ROS type name of a default value (or of a declared type)."""
-    if isinstance(default, Parameter.Type):
-        return default.name.lower()
-    if isinstance(default, (list, tuple)):
-        kinds = {_TYPE_NAMES.get(type(v)) for v in default}
-        return f'{kinds.pop()}_array' if len(kinds) == 1 and None not in kinds else 'array'
-    return _TYPE_NAMES.get(type(default), type(default).__name__)
 
 
 def type_name(default: Any) -> str:
@@ -325,7 +315,12 @@ def type_name(default: Any) -> str:
         The type as ``ros2 param describe`` names it, in lower case (``array`` for an
         empty or mixed list).
     """
-    return _type_name(default)
+    if isinstance(default, Parameter.Type):
+        return default.name.lower()
+    if isinstance(default, (list, tuple)):
+        kinds = {_TYPE_NAMES.get(type(v)) for v in default}
+        return f'{kinds.pop()}_array' if len(kinds) == 1 and None not in kinds else 'array'
+    return _TYPE_NAMES.get(type(default), type(default).__name__)
 
 
 def describe_limits(desc: ParameterDescriptor) -> str:
@@ -512,7 +507,7 @@ def _help_entries(rows: Sequence[TableRow]) -> List[str]:
     lines = []
     for row in rows:
         shown = row.default if not isinstance(row.default, Parameter.Type) else 'unset'
-        head = f'  {row.name}: {_type_name(row.default)}, default {shown!r}'
+        head = f'  {row.name}: {type_name(row.default)}, default {shown!r}'
         if row.limits is not None:
             head += f'; from {row.limits[0]} to {row.limits[1]}'
         if row.read_only:

@@ -158,11 +158,10 @@ def static_budget(stated: StatedUncertainties, key: str, power: int) -> ScaleBud
     KeyError
         For another fit.
     """
-    y_name, x_name = STATIC_INPUTS[key]
+    y_name, x_name = STATIC_INPUTS[key]         # two different inputs (or none for y)
     parts: Dict[str, float] = {}
     if y_name:
         parts[y_name] = getattr(stated, y_name)
-    if power and x_name:
-        # the same input on both axes (the load changer's current is its x only) adds once
-        parts[x_name] = math.hypot(parts.get(x_name, 0.0), power * getattr(stated, x_name))
+    if power:
+        parts[x_name] = power * getattr(stated, x_name)
     return _budget(parts)

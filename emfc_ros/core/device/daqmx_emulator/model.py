@@ -637,9 +637,14 @@ class Device:
             large number) on demand or with regeneration (the buffer is then what was
             written).
         """
+        self.advance()
+        return self._space(task)
+
+    @staticmethod
+    def _space(task: Task) -> int:
+        """:meth:`space_available` at the device's present (no advance)."""
         if not task.rate_Hz or task.regeneration:
             return 1 << 62
-        self.advance()
         return max(task.buffer_samples - (task.consumed - task.produced), 0)
 
     def write(self, task: Task, samples_V: np.ndarray) -> int:
@@ -673,7 +678,7 @@ class Device:
             raise DaqmxError(codes.WRITE_FAILED_BECAUSE_WATCHDOG_EXPIRED,
                              f'Task Name: {task.name}')
         data = np.asarray(samples_V, dtype=np.float64).reshape(len(task.channels), -1)
-        space = self.space_available(task)
+        space = self._space(task)
         if data.shape[1] > space:
             raise DaqmxError(codes.SAMPLES_CAN_NOT_YET_BE_WRITTEN,
                              f'Task Name: {task.name}\nSamples to write: {data.shape[1]}\n'

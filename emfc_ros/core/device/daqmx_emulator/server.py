@@ -1112,19 +1112,21 @@ class DaqmxServicer(pb_grpc.NiDAQmxServicer):
         """
         timeout = float(request.timeout)
         end = time.monotonic() + (MAX_WRITE_WAIT_S if timeout < 0 else timeout)
+        n = int(request.num_samps_per_chan)
+        data = np.asarray(request.write_array, dtype=np.float64)
+        values: Optional[np.ndarray] = None
         done = 0
         while True:
             with self.lock:
-                task = self._task(request.task)
-                n = int(request.num_samps_per_chan)
-                data = np.asarray(request.write_array, dtype=np.float64)
-                chans = len(task.channels)
-                if data.size != n * chans:
-                    raise DaqmxError(codes.INVALID_ATTRIBUTE_VALUE,
-                                     f'Task Name: {task.name}\nSamples per channel: {n}\n'
-                                     f'Values written: {data.size} for {chans} channels')
-                values = data.reshape(chans, n) if request.data_layout_raw == GROUP_BY_CHANNEL \
-                    else data.reshape(n, chans).T
+                task = self._task(request.task)     # (each time: it may have been cleared)
+                if values is None:
+                    chans = len(task.channels)
+                    if data.size != n * chans:
+                        raise DaqmxError(codes.INVALID_ATTRIBUTE_VALUE,
+                                         f'Task Name: {task.name}\nSamples per channel: {n}\n'
+                                         f'Values written: {data.size} for {chans} channels')
+                    by_channel = request.data_layout_raw == GROUP_BY_CHANNEL
+                    values = data.reshape(chans, n) if by_channel else data.reshape(n, chans).T
                 take = min(self.device.space_available(task), n - done)
                 if take > 0 or n == 0:
                     done += self.device.write(task, values[:, done:done + take])
