@@ -45,7 +45,9 @@ def test_the_bridge_streams_a_minute_through_nidaqmx_without_a_gap(rate, device,
         '-p', f'daqmx.grpc_address:={device.host}:{device.port}',
         '-p', f'sample_rate_Hz:={rate}', '-p', f'block_size:={block}',
         '-p', 'publish_groups:=false', '-p', 'state_rate_Hz:=10.0',
-        '-p', 'publisher_depth:=1000'], cwd=REPO)
+        '-p', 'publisher_depth:=1000',
+        # the device starts once this probe's subscription has matched, so block 0 is seen
+        '-p', 'min_subscribers:=1'], cwd=REPO)
     node = rclpy.create_node('daqmx_probe', context=ros_context)
     executor.add_node(node)
     blocks = []
