@@ -87,7 +87,9 @@ setup(
         # NI-DAQmx devices (issue 24): NI's client, with gRPC for the NI gRPC Device Server
         # and the emulated device; the rest of the package does not need it.
         'daqmx': ['nidaqmx[grpc]>=1.1'],
-        'test': ['pytest>=7', 'hypothesis>=6', 'mcap>=1.1', 'mcap-ros2-support>=0.5'],
+        # pytest-xdist: tools/test.sh runs the suite in parallel workers
+        'test': ['pytest>=7', 'pytest-xdist>=3.5', 'hypothesis>=6', 'mcap>=1.1',
+                 'mcap-ros2-support>=0.5'],
     },
     zip_safe=True,
     maintainer='emfc_ros developers',

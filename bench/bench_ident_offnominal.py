@@ -22,8 +22,40 @@ the load changer coupled, and is identified knowing only the pan load and the co
 * the broken inputs (pan load told 20 % wrong, position scaled by 1.1, noise-only position):
   each must raise the failure flag or report a large uncertainty.
 
+Units and user experiments (``--units [VARIANT ...]``, issue 28): each draw is a unit of the
+balance type (``offnominal.draw_unit``, benchmark seeds): the mechanics within +/-10 %, each
+amplifier's gain within +/-3 % and its offset within +/-20 uA, the sensor's gain normal with
+the stated 2 %. It plays the shipped trajectory followed by the staircases, as the main job
+does, and is identified with the default options and only the pan load and the coupling given,
+the balance file holding the type's characteristics. Variants, each on the same draws:
+
+- ``amplifiers_true_sensor``: the sensor as its characteristic says (the accuracy target:
+  the characteristics the data determine are identified);
+- ``amplifiers``: as above with a sensor-gain error drawn from its stated uncertainty (the
+  coverage target);
+- ``force_constants``: the motor's and the load changer's force constants drawn within
+  +/-3 % too, identified with the default free set (their ratio fitted:
+  ``load_changer_force_scale``);
+- ``force_constants_file_ratio``: ``force_constants`` with the file's load-changer
+  characteristic as it is (``greybox.free`` without ``load_changer_force_scale``);
+- ``user_prbs``: ``amplifiers``, with the first section a user's PRBS starting at +2.5 mV;
+- ``user_multisine``: ``user_prbs`` with the second section an odd random-phase multisine on
+  the load changer (``offnominal.MULTISINE_SECTION``, one DFT line in twenty excited);
+- ``user_noise``: ``user_multisine`` with the coil's PRBS replaced by Gaussian noise around
+  +1 mV (``offnominal.RANDOM_SECTION``).
+
+Per variant: how often the failure flag was raised, the worst relative errors of c1, c2, d1,
+d2 and of the two modes, and the coverage of the 95 % intervals ``+/-1.96 u_c`` (``u_c``
+combines the statistical and the systematic uncertainty; targets 90-98 %, the flag on none
+of the intact draws, c1..d2 within 2 %/10 %, modes within 0.5 %). Results go to
+``bench/results/ident_units.json`` (a run of some variants keeps the others' results).
+
     .venv/bin/python bench/bench_ident_offnominal.py --json bench/results/ident_offnominal.json
     .venv/bin/python bench/bench_ident_offnominal.py --quick --jobs 1      # 3 draws, 5 reps
+
+    .venv/bin/python bench/bench_ident_offnominal.py --units --draws 20   # every variant
+    .venv/bin/python bench/bench_ident_offnominal.py --units amplifiers force_constants \
+        --draws 40
 
 ``--jobs 0`` runs every task in the main process (for a debugger or a profiler).
 """
@@ -49,9 +81,12 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))   # the working tree, not an installed copy
 
+from emfc_ros.core.ident.balance_names import DEFAULT_FREE, PAN_FORCE_SCALE  # noqa: E402
 from emfc_ros.core.ident.offnominal import (BENCH_NOISE_SEEDS, BENCH_SEEDS,  # noqa: E402
                                             BROKEN_INPUTS, default_experiment, draw_balance,
-                                            modal_truth, record_draw, truth_values)
+                                            draw_unit, modal_truth, MULTISINE_SECTION,
+                                            PRBS_SECTION, RANDOM_SECTION, record_draw,
+                                            truth_values, unit_experiment, with_position_gain)
 from emfc_ros.core.ident.pipeline import identify  # noqa: E402
 
 #: Targets printed next to the figures.
@@ -268,9 +303,110 @@ def run_broken(draw_seed: int, name: str, spread: float) -> Dict[str, Any]:
             'verdict': verdict, 'estimate': out}
 
 
+#: Variants of ``--units`` (module docstring), in the order they run.
+UNIT_VARIANTS = ('amplifiers_true_sensor', 'amplifiers', 'force_constants',
+                 'force_constants_file_ratio', 'user_prbs', 'user_multisine', 'user_noise')
+_UNIT_EXPERIMENTS: Optional[Dict[str, Any]] = None
+
+
+def unit_experiments() -> Dict[str, Any]:
+    """Return the shipped trajectory with staircases and the users' plans, once per process."""
+    global _UNIT_EXPERIMENTS
+    if _UNIT_EXPERIMENTS is None:
+        _UNIT_EXPERIMENTS = {
+            'shipped': unit_experiment(), 'user_prbs': unit_experiment(PRBS_SECTION),
+            'user_multisine': unit_experiment(PRBS_SECTION, MULTISINE_SECTION),
+            'user_noise': unit_experiment(RANDOM_SECTION, MULTISINE_SECTION)}
+    return _UNIT_EXPERIMENTS
+
+
+UNIT_NUMBERS = ('c1_Nm_per_rad', 'c2_Nm_per_rad', 'd1_Nms_per_rad', 'd2_Nms_per_rad')
+UNIT_MODES = (('low_mode_frequency_Hz', 'low_mode_Hz'), ('high_mode_frequency_Hz', 'high_mode_Hz'))
+
+
+def run_unit(seed: int, variant: str) -> Dict[str, Any]:
+    """Identify one drawn unit in one variant (``--units``) and compare with its truth."""
+    experiments = unit_experiments()
+    t0 = time.perf_counter()
+    unit = draw_unit(seed, force_constants=variant.startswith('force_constants'),
+                     sensor_gain_relative=0.0 if variant == 'amplifiers_true_sensor' else 0.02)
+    user = variant.startswith('user_')
+    exp = experiments[variant if user else 'shipped']
+    rec = with_position_gain(record_draw(unit.params, seed, experiment=exp, draw_seed=seed),
+                             unit.sensor_gain)
+    sections = tuple(s.name for s in exp.sections if 'staircase' not in s.name)
+    options = rec.options(sections=sections)
+    if variant == 'force_constants_file_ratio':
+        options['greybox']['free'] = [n for n in DEFAULT_FREE if n != PAN_FORCE_SCALE]
+    if user:
+        options['frf'] = {'coil_sections': [sections[0]], 'pan_sections': [sections[1]],
+                          'two_input_sections': list(sections[2:])}
+    res = identify(rec.recording, rec.section_table, options)
+    row = {'seed': seed, 'variant': variant, 'success': res.success,
+           'time_s': time.perf_counter() - t0,
+           'failures': res.failures[:3], 'factors': unit.factors}
+    g = res.greybox
+    if g is None:
+        return row
+    truth = truth_values(rec.truth)
+    for n in UNIT_NUMBERS:
+        v, se = g.fit.parameters[n], g.fit.standard_errors[n]
+        u_c = math.hypot(se, g.systematic_uncertainty(n) if math.isfinite(
+            g.systematic_uncertainty(n)) else 0.0)
+        row[n] = {'relative_error': v / truth[n] - 1.0, 'z_combined': (v - truth[n]) / u_c,
+                  'z_statistical': (v - truth[n]) / se}
+    for key, attr in UNIT_MODES:
+        d = g.derived.get(key)
+        if d is None:
+            continue
+        t = getattr(rec.modal, attr)
+        row[key] = {'relative_error': d.value / t - 1.0,
+                    'z_combined': (d.value - t) / d.combined_uncertainty,
+                    'z_statistical': (d.value - t) / d.standard_uncertainty}
+    return row
+
+
+def summarise_units(rows: Sequence[Dict[str, Any]],
+                    variants: Sequence[str]) -> Dict[str, Any]:
+    """Per variant: draws, share flagged, worst errors and coverages (``--units``)."""
+    summary = {}
+    for variant in variants:
+        mine = [r for r in rows if r['variant'] == variant]
+        entry: Dict[str, Any] = {'draws': len(mine),
+                                 'flagged': float(np.mean([not r['success'] for r in mine])),
+                                 'flagged_seeds': [r['seed'] for r in mine if not r['success']]}
+        for n in UNIT_NUMBERS + tuple(k for k, _ in UNIT_MODES):
+            got = [r[n] for r in mine if n in r]
+            if not got:
+                continue
+            entry[n] = {
+                'worst_relative_error': float(max(abs(x['relative_error']) for x in got)),
+                'coverage_95_combined': float(np.mean([abs(x['z_combined']) <= Z95
+                                                       for x in got])),
+                'coverage_95_statistical': float(np.mean([abs(x['z_statistical']) <= Z95
+                                                          for x in got])),
+                'std_of_z_combined': float(np.std([x['z_combined'] for x in got]))}
+        summary[variant] = entry
+    return summary
+
+
+def write_units(summary: Dict[str, Any], rows: List[Dict[str, Any]], variants: Sequence[str],
+                path: Path) -> None:
+    """Write ``--units`` results, keeping those of variants this run did not repeat."""
+    if path.is_file():
+        old = json.loads(path.read_text())
+        summary = dict(old.get('summary', {}), **summary)
+        rows = [r for r in old.get('rows', []) if r.get('variant') not in variants] + rows
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({'command': ' '.join(sys.argv), 'summary': summary,
+                                'rows': rows}, indent=1, default=_plain))
+    print(f'wrote {path}')
+
+
 def _call(task: Tuple[str, tuple]) -> Dict[str, Any]:
     kind, args = task
-    return {'draw': run_draw, 'rep': run_rep, 'broken': run_broken}[kind](*args)
+    return {'draw': run_draw, 'rep': run_rep, 'broken': run_broken,
+            'unit': run_unit}[kind](*args)
 
 
 # ---------------------------------------------------------------- summaries
@@ -440,7 +576,7 @@ def print_report(s: Dict[str, Any], args: argparse.Namespace, n_draws: int) -> N
               f'{"-" if fit is None else f"{fit:.1f} %"} | {b["verdict"]} |')
 
 
-def main() -> None:
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
     parser.add_argument('--draws', type=int, default=None, help='draws (default 20)')
     parser.add_argument('--reps', type=int, default=None,
@@ -450,7 +586,13 @@ def main() -> None:
     parser.add_argument('--quick', action='store_true', help='3 draws, 5 repetitions')
     parser.add_argument('--spread', type=float, default=0.10)
     parser.add_argument('--json', default=None, help='write the results to this file')
+    parser.add_argument('--units', nargs='*', default=None, metavar='VARIANT',
+                        help='identify drawn units and user experiments instead (all '
+                             f'variants when none is named: {", ".join(UNIT_VARIANTS)}); '
+                             'writes bench/results/ident_units.json unless --json')
     args = parser.parse_args()
+    if args.units is not None:
+        return units_main(parser, args)
     n_draws = args.draws if args.draws is not None else (3 if args.quick else 20)
     n_reps = args.reps if args.reps is not None else (5 if args.quick else 100)
     if not 1 <= n_draws <= len(BENCH_SEEDS) or not 0 <= n_reps <= len(BENCH_NOISE_SEEDS):
@@ -463,24 +605,13 @@ def main() -> None:
               for noise in BENCH_NOISE_SEEDS[:n_reps]]
     start = time.perf_counter()
     rows = []
-    if args.jobs <= 0:
-        results = map(_call, tasks)
-        pool = None
-    else:
-        pool = multiprocessing.get_context('spawn').Pool(args.jobs)
-        results = pool.imap_unordered(_call, tasks)
-    try:
-        for count, row in enumerate(results, 1):
-            rows.append(row)
-            print(f'[{count}/{len(tasks)}] {row["kind"]} draw {row["draw_seed"]} '
-                  f'{row.get("name", row.get("noise_seed", ""))}: success '
-                  f'{row["estimate"]["success"]}, worst fit '
-                  f'{row["estimate"].get("worst_section_fit_percent", float("nan")):.1f} %, '
-                  f'{row["estimate"]["time_s"]:.1f} s', file=sys.stderr, flush=True)
-    finally:
-        if pool is not None:
-            pool.close()
-            pool.join()
+    for count, row in enumerate(run_tasks(tasks, args.jobs), 1):
+        rows.append(row)
+        print(f'[{count}/{len(tasks)}] {row["kind"]} draw {row["draw_seed"]} '
+              f'{row.get("name", row.get("noise_seed", ""))}: success '
+              f'{row["estimate"]["success"]}, worst fit '
+              f'{row["estimate"].get("worst_section_fit_percent", float("nan")):.1f} %, '
+              f'{row["estimate"]["time_s"]:.1f} s', file=sys.stderr, flush=True)
     wall_s = time.perf_counter() - start
     draws = sorted((r for r in rows if r['kind'] == 'draw'), key=lambda r: r['draw_seed'])
     reps = sorted((r for r in rows if r['kind'] == 'rep'), key=lambda r: r['noise_seed'])
@@ -501,6 +632,46 @@ def main() -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(out, indent=2, default=_plain))
         print(f'wrote {path}')
+    return 0
+
+
+def run_tasks(tasks: Sequence[Tuple[str, tuple]], jobs: int) -> Any:
+    """Yield the tasks' rows as they finish (``jobs`` worker processes, 0: in-process)."""
+    if jobs <= 0:
+        yield from map(_call, tasks)
+        return
+    pool = multiprocessing.get_context('spawn').Pool(jobs)
+    try:
+        yield from pool.imap_unordered(_call, tasks)
+    finally:
+        pool.close()
+        pool.join()
+
+
+def units_main(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    """Run ``--units``: every named variant on the first ``--draws`` benchmark seeds."""
+    variants = list(args.units) or list(UNIT_VARIANTS)
+    unknown = [v for v in variants if v not in UNIT_VARIANTS]
+    n_draws = args.draws if args.draws is not None else (3 if args.quick else 20)
+    if unknown or not 1 <= n_draws <= len(BENCH_SEEDS):
+        parser.error(f'--units variants from {", ".join(UNIT_VARIANTS)}; --draws in '
+                     f'[1, {len(BENCH_SEEDS)}]')
+    tasks = [('unit', (seed, v)) for seed in BENCH_SEEDS[:n_draws] for v in variants]
+    start = time.perf_counter()
+    rows = []
+    for count, row in enumerate(run_tasks(tasks, args.jobs), 1):
+        rows.append(row)
+        worst = {n: round(100 * row[n]['relative_error'], 3) for n in UNIT_NUMBERS if n in row}
+        print(f'[{count}/{len(tasks)}] {row["seed"]} {row["variant"]:26s} success '
+              f'{row["success"]} errors % {worst} {row["failures"][:1]}', file=sys.stderr,
+              flush=True)
+    rows.sort(key=lambda r: (variants.index(r['variant']), r['seed']))
+    summary = summarise_units(rows, variants)
+    print(json.dumps(summary, indent=1))
+    print(f'\ntotal wall time {time.perf_counter() - start:.0f} s with {args.jobs} job(s)')
+    write_units(summary, rows, variants,
+                Path(args.json) if args.json else ROOT / 'bench' / 'results' / 'ident_units.json')
+    return 0
 
 
 def _plain(value: Any) -> Any:
@@ -512,4 +683,4 @@ def _plain(value: Any) -> Any:
 
 
 if __name__ == '__main__':
-    main()
+    raise SystemExit(main())

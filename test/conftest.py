@@ -11,6 +11,7 @@ import pytest
 
 import ros_harness
 
+WORKER = ros_harness.worker_network_namespace()
 ros_harness.isolate_environment()
 
 #: Folders whose tests start real nodes over real DDS (or ROS command-line tools).

@@ -71,6 +71,42 @@ def session_domain_id() -> int:
     return int(value) if value.isdigit() else 100 + os.getpid() % 100
 
 
+#: ``unshare(2)``'s flag for a new network namespace.
+CLONE_NEWNET = 0x40000000
+
+
+def worker_network_namespace() -> Optional[str]:
+    """
+    Give a pytest-xdist worker a loopback of its own (its own network namespace).
+
+    ``tools/test.sh`` runs the suite in parallel workers inside one private network
+    namespace (root only). Each worker then moves itself into a namespace of its own, before
+    any thread of DDS starts, with its own domain id, so that the workers' nodes never see
+    each other and the documented fixed ports (the device emulators' 5555 and 50051) are free
+    in each. Outside a worker, or without that namespace, nothing changes.
+
+    Returns
+    -------
+    str or None
+        What was done (for the report header), None when nothing was.
+    """
+    worker = os.environ.get('PYTEST_XDIST_WORKER', '')
+    if not worker.startswith('gw') or os.environ.get('EMFC_IN_NETNS') != '1' or \
+            os.environ.get('EMFC_WORKER_NETNS') == worker:
+        return None
+    import ctypes
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.unshare(CLONE_NEWNET) != 0:
+        raise OSError(ctypes.get_errno(), f'xdist worker {worker}: unshare of the network '
+                                          f'namespace failed (tools/test.sh runs as root)')
+    subprocess.run(['ip', 'link', 'set', 'lo', 'up'], check=True, timeout=30)
+    index = int(worker[2:])
+    base = session_domain_id()
+    os.environ['ROS_DOMAIN_ID'] = str((base + 1 + index) % 230)
+    os.environ['EMFC_WORKER_NETNS'] = worker
+    return f'{worker}: own network namespace, ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}'
+
+
 def isolate_environment() -> None:
     """Force loopback-only discovery and the session's domain id for this process."""
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'

@@ -11,7 +11,13 @@ venv=${EMFC_VENV:-$here/.venv}
 cd "$here"
 cmd=("$venv/bin/pytest" -q -p no:cacheprovider "$@")
 if [ "$(id -u)" = 0 ] && [ -z "${EMFC_IN_NETNS:-}" ] && command -v unshare >/dev/null; then
-  echo "test: running in a private network namespace (loopback only), ROS_DOMAIN_ID=$ROS_DOMAIN_ID" >&2
+  # EMFC_TEST_WORKERS=N (default 2) parallel pytest-xdist workers, a file per worker at a
+  # time, each in a network namespace of its own (test/ros_harness.py); 1 runs serially.
+  workers=${EMFC_TEST_WORKERS:-2}
+  if [ "$workers" -gt 1 ] 2>/dev/null; then
+    cmd+=(-n "$workers" --dist loadfile)
+  fi
+  echo "test: running in a private network namespace (loopback only), ROS_DOMAIN_ID=$ROS_DOMAIN_ID, ${workers} worker(s)" >&2
   exec unshare -n -- env EMFC_IN_NETNS=1 bash -c 'ip link set lo up && exec "$@"' _ "${cmd[@]}"
 fi
 echo "test: not root; loopback-only discovery, ROS_DOMAIN_ID=$ROS_DOMAIN_ID" >&2

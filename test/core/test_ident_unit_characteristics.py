@@ -85,7 +85,8 @@ def test_with_the_files_curves_the_same_unit_is_refused_or_covered(unit):
     With the force scale free (the default) the load changer's 2 % and the coil's 3 % become
     their ratio, which the fit finds, and a common 3 % scale, which the coil amplifier's
     stated uncertainty covers; with the file's load-changer characteristic as it is, the
-    mass matrix contradicts the masses and the fit is refused.
+    fit is refused or its combined uncertainties (the load changer's stated 2 % among the
+    inputs of the mass check since issue 28) cover the errors.
     """
     from emfc_ros.core.ident.balance_names import DEFAULT_FREE, PAN_FORCE_SCALE
     truth = truth_values(unit.truth)
@@ -105,7 +106,15 @@ def test_with_the_files_curves_the_same_unit_is_refused_or_covered(unit):
     fixed = [n for n in DEFAULT_FREE if n != PAN_FORCE_SCALE]
     refused = identify(unit.recording, unit.section_table,
                        unit.options(amplifiers_from_static=False, free=fixed))
-    assert not refused.success
+    if refused.success:     # within the characteristics' stated uncertainties: covered
+        g = refused.greybox
+        for name in MECHANICS:
+            error = g.fit.parameters[name] - truth[name]
+            combined = math.hypot(g.fit.standard_errors[name], g.systematic_uncertainty(name))
+            assert abs(error) < 2.0 * combined, name
+        # the load changer's 2 % is there, and its stated 2 % dominates c2's budget
+        assert abs(g.fit.parameters['c2_Nm_per_rad'] / truth['c2_Nm_per_rad'] - 1.0) > 0.03
+        assert g.systematic.dominant('c2_Nm_per_rad')[0][0] == 'load_changer_force_relative'
 
 
 def test_a_drawn_unit_keeps_the_drawn_mechanics_and_draws_its_characteristics():

@@ -14,6 +14,7 @@ import pytest
 from emfc_ros.core.ident.balance_result import Derived, MASS_KEYS, Setting, Verdict
 from emfc_ros.core.ident.balance_verdict import check_masses
 from emfc_ros.core.ident.offnominal import draw_balance, TEST_SEEDS
+from emfc_ros.core.ident.systematic import Component, SystematicBudget
 from emfc_ros.core.model.load import loaded
 from emfc_ros.core.model.mechanics import mass_matrix
 from emfc_ros.core.model.parameters import BalanceParameters
@@ -27,11 +28,24 @@ def identified(params: BalanceParameters, gain: float) -> dict:
     return {k: Derived(float(v), 1e-4 * abs(float(v)), u) for (k, u), v in zip(MASS_KEYS, entries)}
 
 
+def sensor_budget(derived: dict, relative: float = 0.02) -> SystematicBudget:
+    # the sensor's stated uncertainty: every mass-matrix entry scales with the sensor's gain
+    part = Component('sensor_gain_relative', 'sensor_gain_relative', 'position_scale',
+                     relative, relative, '1')
+    budget = SystematicBudget((part,))
+    for k, _ in MASS_KEYS:
+        budget.add(k, {part.name: -relative * derived[k].value})
+    return budget
+
+
 def verdict_for(truth: BalanceParameters, gain: float, relative_uncertainty: float = 0.05,
-                configured: BalanceParameters = BalanceParameters()) -> Verdict:
+                configured: BalanceParameters = BalanceParameters(),
+                stated_sensor: float = 0.0) -> Verdict:
     verdict = Verdict()
     setting = Setting(configured, LOAD_KG, True, 10000.0)
-    check_masses(identified(truth, gain), setting, relative_uncertainty, verdict)
+    derived = identified(truth, gain)
+    budget = sensor_budget(derived, stated_sensor) if stated_sensor > 0.0 else None
+    check_masses(derived, setting, relative_uncertainty, verdict, budget)
     return verdict
 
 
@@ -53,6 +67,28 @@ def test_a_sensor_gain_10_percent_off_is_named(seed, gain):
     # the reported scale is the gain's, within the draws' own spread of the masses
     shown = float(failures[0].split('scaled by ')[1].split(' %')[0])
     assert shown == pytest.approx(100.0 * (1.0 / gain - 1.0), abs=4.0)
+
+
+@pytest.mark.parametrize('seed', SEEDS)
+def test_a_sensor_within_its_stated_uncertainty_passes_and_one_far_outside_is_named(seed):
+    # 2 % stated: 4 % off (2 sigma) is no failure (a warning where the masses alone would
+    # have failed it), 25 % off (12 sigma) still fails with the scale named
+    within = verdict_for(draw_balance(seed), 1.04, stated_sensor=0.02)
+    assert within.failures == []
+    if verdict_for(draw_balance(seed), 1.04).failures:
+        assert len(within.warnings) == 1 and 'masses alone' in within.warnings[0]
+    far = verdict_for(draw_balance(seed), 1.25, stated_sensor=0.02).failures
+    assert len(far) == 1 and 'scaled by' in far[0] and 'stated uncertainties' in far[0]
+    # 10 % off (5 sigma): refused, or, where the drawn masses partly cancel it, named
+    blunder = verdict_for(draw_balance(seed), 1.1, stated_sensor=0.02)
+    assert blunder.failures or 'masses alone' in blunder.warnings[0]
+
+
+def test_the_stated_sensor_uncertainty_turns_a_mass_only_failure_into_a_warning():
+    truth = draw_balance(SEEDS[0])
+    assert verdict_for(truth, 1.08).failures                  # the masses alone: refused
+    verdict = verdict_for(truth, 1.08, stated_sensor=0.05)
+    assert verdict.failures == [] and 'masses alone' in verdict.warnings[0]
 
 
 def test_masses_known_worse_widen_the_check():

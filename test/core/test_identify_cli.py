@@ -109,7 +109,9 @@ def test_a_failed_fit_exits_1_with_its_report(record, tmp_path, broken):
         bag = bag_of(record, tmp_path)
         args = ['--load-mass-kg', repr(2.0 * record.known_load_mass_kg)]
     elif broken == 'position_gain':
-        bag = bag_of(with_position_gain(record, 1.1), tmp_path)
+        # 25 % off, 12 times its stated 2 %: the mass check names it (10 % is named on 14
+        # of the first 20 benchmark draws, the rest report c1 4.3 combined sigmas off)
+        bag = bag_of(with_position_gain(record, 1.25), tmp_path)
     else:
         bag = bag_of(with_noise_position(record, seed=SEED), tmp_path)
     done = identify(bag, tmp_path / 'out', *args)

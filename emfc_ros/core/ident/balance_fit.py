@@ -1028,7 +1028,7 @@ def fit_balance(setting: Setting, channels: Mapping[str, np.ndarray],
     check(fit, specs, fd, verdict)
     budget = fit_budget(known, effects, fit.free_names, fit.systematic_sensitivity)
     derived = derived_quantities(model, fit, setting, budget)
-    check_masses(derived, setting, gcfg.mass_relative_uncertainty, verdict)
+    check_masses(derived, setting, gcfg.mass_relative_uncertainty, verdict, budget)
     check_uncertainties(fit, gcfg.mass_relative_uncertainty, verdict, skip=(REST_POSITION,))
     mass_fixed = [n for n in (choice.fixed if choice is not None else {})
                   if n in MASS_MATRIX_NAMES + INERTIA_NAMES]
