@@ -6,6 +6,7 @@ any test imports rclpy.
 """
 
 from pathlib import Path
+from typing import Dict
 
 import pytest
 
@@ -21,8 +22,17 @@ ROS_FIXTURES = {'ros_context', 'executor', 'processes'}
 
 
 def pytest_collection_modifyitems(config, items):
-    """Mark every test that needs DDS ``ros`` (``-m 'not ros'`` runs the rest, no DDS)."""
+    """
+    Mark every test that needs DDS ``ros`` (``-m 'not ros'`` runs the rest, no DDS).
+
+    Then order the files by the time their ``slow`` tests take, longest first (a ``slow``
+    test counts its marker's ``seconds``, 5 when not given; stable: the tests of a file keep
+    their order, files of equal weight theirs), so that the parallel workers of
+    ``tools/test.sh`` (a file each at a time) start the long files first and do not end on
+    one of them.
+    """
     root = Path(__file__).resolve().parent
+    weight: Dict[str, int] = {}
     for item in items:
         try:
             folder = Path(str(item.fspath)).resolve().relative_to(root).parts[0]
@@ -30,6 +40,10 @@ def pytest_collection_modifyitems(config, items):
             folder = ''
         if folder in ROS_FOLDERS or ROS_FIXTURES & set(getattr(item, 'fixturenames', ())):
             item.add_marker(pytest.mark.ros)
+        slow = item.get_closest_marker('slow')
+        seconds = 0 if slow is None else int(slow.kwargs.get('seconds', 5))
+        weight[str(item.fspath)] = weight.get(str(item.fspath), 0) + seconds
+    items.sort(key=lambda item: -weight[str(item.fspath)])
 
 
 @pytest.fixture

@@ -34,7 +34,7 @@ def device():
         assert emulator.stop() == 0
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=60)
 @pytest.mark.parametrize('rate', [10000.0, 100000.0])
 def test_the_bridge_streams_a_minute_through_nidaqmx_without_a_gap(rate, device, executor,
                                                                    ros_context, processes):

@@ -742,7 +742,7 @@ RECORDER_LINE = ('ros2 run emfc_ros recorder --ros-args -r __ns:=/emfc '
                  'measurements, measurements/description]')
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=50)
 def test_hardware_experiment_applies_the_whole_trajectory_and_is_identified(tools, tmp_path):
     """
     The docstring's sequence: the emulator, the launch line, the recorder, emfc-identify.
@@ -923,7 +923,7 @@ def test_replay_gives_back_the_recorded_measurements_to_its_done_status(tools, s
         session.close()
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=50)
 def test_signal_generator_launch_is_recorded_from_its_first_block(tools, tmp_path):
     """
     The generator's launch lines, recorded from sample 0 by a recorder started first.
@@ -994,7 +994,7 @@ def _zero(session, node, argv):
     return future.result().success, future.result().message
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=30)
 def test_weigh_launch_shows_the_scheduled_mass(tools, tmp_path):
     """
     The weighing example shows its mass.

@@ -162,6 +162,7 @@ def test_the_install_lines_start_the_generator_on_the_shipped_trajectory(
 # -- signal generator in /emfc, the service call, the recorder, the bag tools ---------------
 
 
+@pytest.mark.slow(seconds=45)
 def test_generator_service_call_recorder_and_bag_tools_as_typed(tmp_path, processes, executor,
                                                                 ros_context):
     """
