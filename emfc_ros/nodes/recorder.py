@@ -590,7 +590,10 @@ class RecorderNode(Node):
             return
         new = False
         for fault in faults:
-            key = (topic, fault.epoch, fault.kind, fault.device_index)
+            # one record per kind and epoch, as the bridge latches them: a fault it widens
+            # (a driver's exact index after the health counters' estimate) replaces its
+            # earlier record instead of standing beside it
+            key = (topic, fault.epoch, fault.kind)
             record = dict(fault.to_dict(), topic=topic)
             if self._faults.get(key) != record:
                 new = new or key not in self._faults

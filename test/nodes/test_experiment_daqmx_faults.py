@@ -86,8 +86,8 @@ def test_a_short_host_stall_is_ni_s_output_underflow_and_fails_the_run(tmp_path,
     assert 'Traceback' not in text, text
     faults = _bag_faults(tmp_path)
     under = next(f for f in faults if f['kind'] == 'device_underrun')
-    assert under['exact'] is True and under['device_index'] > 0
-    assert '-200290' in under['message']
+    assert under['exact'] is True and under['device_index'] > 0, faults
+    assert '-200290' in under['message'], faults
 
 
 @pytest.mark.slow

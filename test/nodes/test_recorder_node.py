@@ -522,3 +522,37 @@ def test_invalid_start_up_parameters_leave_the_node_in_error(executor, ros_conte
         executor, lambda: {'/recorder', '/helper'} <= set(good._node_parameters)
         and not good._fetches, TIMEOUT_S)
     assert call(executor, helper, '/other/recorder/stop').success
+
+
+def test_a_widened_fault_replaces_its_earlier_record_in_the_bag(executor, ros_context, tmp_path):
+    """The bridge widens a fault (health estimate, then the driver's exact index): one record."""
+    from emfc_ros.core.device.faults import Fault
+    pub = Publisher(ros_context)
+    executor.add_node(pub.node)
+    bag = tmp_path / 'faults'
+    recorder = RecorderNode(context=ros_context, parameter_overrides=[
+        Parameter('output', value=str(bag)), Parameter('discovery_period_s', value=0.05)])
+    executor.add_node(recorder)
+    measured = pub.node.create_publisher(String, 'measurements/description', LATCHED_QOS)
+    assert ros_harness.spin_until(
+        executor, lambda: '/t/measurements/description' in recorder._recorded
+        and measured.get_subscription_count() >= 1, TIMEOUT_S)
+    estimate = Fault('device_underrun', 9000, 500, 'ran out of setpoints', False, 1)
+    widened = Fault('device_underrun', 9250, None,
+                    'ran out of setpoints; NI-DAQmx error -200290', True, 1)
+    gap = Fault('device_setpoint_gap', 100, 3, 'gap', True, 1)
+    for faults in ([estimate], [widened, gap]):
+        measured.publish(description_to_msg(StreamDescription(
+            stream='measurements', sample_rate_Hz=RATE_HZ, block_size=1000, channels=CHANNELS,
+            epoch=1, source='/t/publisher',
+            extra={'faults': [f.to_dict() for f in faults]})))
+        assert ros_harness.spin_until(
+            executor, lambda: recorder.recorded_faults() == len(faults), TIMEOUT_S)
+    assert ros_harness.spin_until(
+        executor, lambda: recorder.recorded_faults() == 2
+        and any(r.get('exact') for r in recorder._faults.values()), TIMEOUT_S)
+    assert call(executor, pub.node, '/recorder/stop').success
+    faults = yaml.safe_load(read_metadata(bag)['custom_data']['emfc_ros.faults'])
+    assert [(f['kind'], f['device_index'], f['exact']) for f in faults] == [
+        ('device_underrun', 9250, True), ('device_setpoint_gap', 100, True)]
+    assert faults[0]['topic'] == '/t/measurements/description'
